@@ -1,0 +1,59 @@
+"""URLB environments as Gymnasium ids, registered on import.
+
+* ``URLB/<domain>-<task>-v0``: the 12 URLB tasks (for example ``URLB/walker-flip-v0``,
+  ``URLB/jaco-reach_top_left-v0``) and ``URLB/point_mass-reach-v0``;
+* ``URLB/<domain>-v0``: the reward-free pre-training environment of a domain, on its primal task's
+  physics (walker stand, quadruped walk, jaco reach_top_left); the reward is 0 and the task reward is
+  reported in ``info["task_reward"]``.
+"""
+
+from __future__ import annotations
+
+import gymnasium as gym
+
+from envs.dmc import DMCEnv
+from envs.skill_wrapper import SkillObservationWrapper
+from envs.tasks import DOMAIN_TASKS, URLB_TASKS, loader
+
+#: episode length of each domain (time limit / control timestep)
+EPISODE_LENGTH = {"walker": 1000, "quadruped": 1000, "jaco": 250, "point_mass": 1000}
+
+
+def make_dmc(domain: str, task: str, reward_free: bool = False, **kwargs) -> DMCEnv:
+    """Build a URLB environment (the entry point behind every registered id).
+
+    :param domain: URLB domain
+    :param task: task of that domain
+    :param reward_free: return reward 0 (pre-training), keeping the task reward in ``info``
+    :param kwargs: passed to :class:`envs.dmc.DMCEnv` (``render_mode``, ``render_size``, ...)
+    """
+    return DMCEnv(loader(domain, task), reward_free=reward_free, **kwargs)
+
+
+def env_ids() -> list[str]:
+    """All registered URLB ids: pre-training ids first, then tasks."""
+    pretrain = [f"URLB/{domain}-v0" for domain in DOMAIN_TASKS]
+    tasks = [f"URLB/{domain}-{task}-v0" for domain, tasks in DOMAIN_TASKS.items() for task in tasks]
+    return pretrain + tasks
+
+
+def register_envs() -> None:
+    """Register the URLB ids with Gymnasium (idempotent)."""
+    for domain, tasks in DOMAIN_TASKS.items():
+        entries = [(f"URLB/{domain}-v0", tasks[0], True)] + [(f"URLB/{domain}-{t}-v0", t, False) for t in tasks]
+        for env_id, task, reward_free in entries:
+            if env_id in gym.registry:
+                continue
+            gym.register(
+                env_id,
+                entry_point="envs:make_dmc",
+                kwargs={"domain": domain, "task": task, "reward_free": reward_free},
+                # the dm_control time limit ends the episode; no extra TimeLimit wrapper
+                max_episode_steps=None,
+                disable_env_checker=True,
+            )
+
+
+register_envs()
+
+__all__ = ["DMCEnv", "SkillObservationWrapper", "URLB_TASKS", "DOMAIN_TASKS", "EPISODE_LENGTH", "make_dmc", "env_ids"]

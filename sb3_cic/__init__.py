@@ -1,0 +1,30 @@
+"""sb3-cic: Contrastive Intrinsic Control and the URLB methods for Stable-Baselines3.
+
+Importing the package registers the URLB Gymnasium ids (``URLB/walker-v0``, ``URLB/walker-flip-v0``...).
+"""
+
+import envs  # noqa: F401  (registers the Gymnasium ids)
+from sb3_cic.buffers import URLBReplayBuffer
+from sb3_cic.callbacks import FixedSkillCallback, SkillGridSweepCallback, SkillSelectionCallback, URLBEvalCallback
+from sb3_cic.constants import EXPERT_SCORES, normalized_score
+from sb3_cic.ddpg import URLBDDPG
+from sb3_cic.methods import CIC
+from sb3_cic.skills import OneHotSkillPrior, SkillPrior, SphereSkillPrior, UniformSkillPrior
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "CIC",
+    "URLBDDPG",
+    "URLBReplayBuffer",
+    "SkillPrior",
+    "UniformSkillPrior",
+    "OneHotSkillPrior",
+    "SphereSkillPrior",
+    "SkillSelectionCallback",
+    "SkillGridSweepCallback",
+    "FixedSkillCallback",
+    "URLBEvalCallback",
+    "EXPERT_SCORES",
+    "normalized_score",
+]

@@ -1,0 +1,56 @@
+"""Replay buffer of the URLB agents: SB3's n-step buffer, skill-consistent, with a relabel hook."""
+
+from __future__ import annotations
+
+from typing import Any, Callable
+
+import numpy as np
+from stable_baselines3.common.buffers import NStepReplayBuffer
+from stable_baselines3.common.type_aliases import ReplayBufferSamples
+from stable_baselines3.common.vec_env import VecNormalize
+
+Relabel = Callable[[ReplayBufferSamples], ReplayBufferSamples]
+
+
+class URLBReplayBuffer(NStepReplayBuffer):
+    """:class:`~stable_baselines3.common.buffers.NStepReplayBuffer` for observations ``[state, skill]``.
+
+    * n-step returns as SB3 computes them: discounted reward sum over ``n_steps`` (stopping at an
+      episode end), bootstrap discount ``gamma ** k``, next observation ``s_{t+k}``; time-limit
+      ends are truncations and bootstrap.
+    * The next observation of a sampled transition carries the skill of its observation, even when
+      the skill was resampled within the n steps.
+    * ``relabel``: a hook installed by the algorithm in pre-training; it receives every sampled batch
+      and returns it with the intrinsic reward in place of the stored reward. It is never pickled.
+
+    :param args: see :class:`~stable_baselines3.common.buffers.NStepReplayBuffer`
+    :param skill_dim: number of trailing observation entries that hold the skill (0: no skill)
+    :param n_steps: n of the n-step return
+    :param gamma: discount factor
+    :param kwargs: see :class:`~stable_baselines3.common.buffers.NStepReplayBuffer`
+    """
+
+    def __init__(self, *args: Any, skill_dim: int = 0, n_steps: int = 3, gamma: float = 0.99, **kwargs: Any) -> None:
+        super().__init__(*args, n_steps=n_steps, gamma=gamma, **kwargs)
+        self.skill_dim = skill_dim
+        self.relabel: Relabel | None = None
+
+    def _get_samples(self, batch_inds: np.ndarray, env: VecNormalize | None = None) -> ReplayBufferSamples:
+        samples = super()._get_samples(batch_inds, env)
+        if self.skill_dim > 0:
+            samples.next_observations[:, -self.skill_dim :] = samples.observations[:, -self.skill_dim :]
+        return samples
+
+    def sample(self, batch_size: int, env: VecNormalize | None = None) -> ReplayBufferSamples:
+        samples = super().sample(batch_size, env)
+        return samples if self.relabel is None else self.relabel(samples)
+
+    def transition_nbytes(self) -> int:
+        """Bytes stored per transition (all arrays, one environment)."""
+        arrays = (self.observations, self.next_observations, self.actions, self.rewards, self.dones, self.timeouts)
+        return int(sum(a.nbytes for a in arrays) // (self.buffer_size * self.n_envs))
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = self.__dict__.copy()
+        state["relabel"] = None  # holds the algorithm and its networks
+        return state

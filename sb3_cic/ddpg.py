@@ -1,0 +1,442 @@
+"""URLB-faithful DDPG: the engine every unsupervised method of this package runs on."""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar, TypeVar
+
+import gymnasium as gym
+import numpy as np
+import torch as th
+import torch.nn.functional as F
+from gymnasium import spaces
+from stable_baselines3 import DDPG
+from stable_baselines3.common.callbacks import BaseCallback, CallbackList
+from stable_baselines3.common.noise import NormalActionNoise
+from stable_baselines3.common.policies import BasePolicy
+from stable_baselines3.common.save_util import load_from_zip_file
+from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, ReplayBufferSamples, Schedule
+from stable_baselines3.common.vec_env import VecEnv
+
+from envs.skill_wrapper import SkillObservationWrapper
+from sb3_cic.buffers import URLBReplayBuffer
+from sb3_cic.policies import URLBPolicy
+from sb3_cic.rewards.base import RewardModule
+from sb3_cic.skills import SkillPrior
+
+SelfURLBDDPG = TypeVar("SelfURLBDDPG", bound="URLBDDPG")
+
+
+def _find_skill_wrapper(env: gym.Env) -> SkillObservationWrapper | None:
+    while isinstance(env, gym.Wrapper):
+        if isinstance(env, SkillObservationWrapper):
+            return env
+        env = env.env
+    return None
+
+
+def prepare_env(env: GymEnv | str, prior: SkillPrior | None, resample_every: int | None = 50) -> GymEnv:
+    """Make ``env`` (an id, an env or a VecEnv) ready for a URLB agent.
+
+    Checks that actions are continuous and observations flat states, and wraps the env with
+    :class:`~envs.SkillObservationWrapper` when the agent has a skill prior and the env is not
+    wrapped yet. A wrapper with another skill size, or a VecEnv without the wrapper, is a ``ValueError``.
+
+    :param env: environment id, environment or VecEnv
+    :param prior: the agent's skill prior, or None
+    :param resample_every: skill resampling period given to a new wrapper
+    """
+    if isinstance(env, str):
+        env = gym.make(env)
+    if not isinstance(env.action_space, spaces.Box):
+        raise ValueError(f"URLB agents need a continuous (Box) action space, got {env.action_space}")
+    obs_space = env.observation_space
+    if not isinstance(obs_space, spaces.Box) or len(obs_space.shape) != 1:
+        raise ValueError(
+            f"URLB agents work on flat state observations (a 1-D Box), got {obs_space}; "
+            "image or Dict observations are not supported"
+        )
+    if prior is None:
+        return env
+    if isinstance(env, VecEnv):
+        if not all(env.env_is_wrapped(SkillObservationWrapper)):
+            raise ValueError("a VecEnv given to a skill-based agent must wrap each env in SkillObservationWrapper")
+        dims = set(env.get_attr("skill_dim"))
+        if dims != {prior.dim}:
+            raise ValueError(f"the env's SkillObservationWrapper has skill_dim {dims}, the agent's prior {prior.dim}")
+        return env
+    wrapper = _find_skill_wrapper(env)
+    if wrapper is None:
+        return SkillObservationWrapper(env, prior, resample_every=resample_every)
+    if wrapper.skill_dim != prior.dim:
+        raise ValueError(f"the env's SkillObservationWrapper has skill_dim {wrapper.skill_dim}, the agent's prior {prior.dim}")
+    return env
+
+
+class URLBDDPG(DDPG):
+    """DDPG as in the Unsupervised RL Benchmark (Laskin et al., 2021), the base of every method here.
+
+    Reference implementation: https://github.com/rll-research/url_benchmark (``agent/ddpg.py``).
+    Differences from SB3's DDPG, all URLB's: a twin critic with LayerNorm/Tanh trunks
+    (:class:`~sb3_cic.policies.URLBPolicy`); exploration ``mu + N(0, 0.2^2)``; for the target and
+    the actor loss the noise is clipped to +-0.3 and the action clamped with a straight-through
+    gradient; target ``r + disc * min(Q1', Q2')`` with the target action from the online actor (URLB has
+    no target actor); actor loss ``-min(Q1, Q2)`` at every update; n-step (3) returns; 4,000 random
+    steps, then one update every 2 env steps.
+
+    Unsupervised methods subclass it with a skill prior (:attr:`skill_prior`, the env is wrapped with
+    :class:`~envs.SkillObservationWrapper`) and an intrinsic reward module (:meth:`_make_reward_module`).
+    In pre-training (``reward_free=True``) the replay buffer's relabel hook trains the reward module on
+    every sampled batch and replaces the batch's reward with the intrinsic reward. Fine-tuning starts
+    with :meth:`load_pretrained`.
+
+    Deliberate deviations from the reference code: the intrinsic reward of a batch is computed by the
+    reward networks as they were when the batch was sampled (URLB: just after their update on that
+    batch); at fine-tuning the target critic starts as a copy of the loaded critic (URLB leaves it at
+    its random initialisation).
+
+    :param policy: the policy model (``"MlpPolicy"``; width through ``policy_kwargs={"hidden_dim": ...}``)
+    :param env: environment id, environment or VecEnv
+    :param learning_rate: Adam learning rate of actor and critic
+    :param buffer_size: replay capacity
+    :param learning_starts: random-action steps before learning
+    :param batch_size: minibatch size
+    :param tau: soft target update coefficient (at every update)
+    :param gamma: discount factor
+    :param train_freq: env steps between updates
+    :param gradient_steps: updates per ``train_freq``
+    :param n_steps: n of the n-step return
+    :param exploration_std: std of the gaussian exploration noise
+    :param exploration_clip: clip of that noise for the target action and the actor loss
+    :param reward_free: pre-training mode: train the reward module and use its reward
+        (default: True for a method with a reward module)
+    :param skill_prior: skill prior (None: no skill)
+    :param skill_resample_every: skill resampling period of the skill wrapper
+    :param replay_buffer_kwargs: extra arguments of :class:`~sb3_cic.buffers.URLBReplayBuffer`
+    :param stats_window_size: episodes averaged in the rollout logs
+    :param tensorboard_log: tensorboard log folder
+    :param policy_kwargs: policy arguments (``hidden_dim``)
+    :param verbose: verbosity
+    :param seed: random seed
+    :param device: torch device
+    :param _init_setup_model: build the networks at construction
+    """
+
+    policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"MlpPolicy": URLBPolicy}  # type: ignore[assignment]
+    policy: URLBPolicy
+    #: what fine-tuning keeps of the pre-trained critic: "trunk" (URLB), "all" (ProtoRL) or "none"
+    finetune_critic: ClassVar[str] = "trunk"
+
+    def __init__(
+        self,
+        policy: str | type[URLBPolicy],
+        env: GymEnv | str,
+        learning_rate: float | Schedule = 1e-4,
+        buffer_size: int = 1_000_000,
+        learning_starts: int = 4000,
+        batch_size: int = 1024,
+        tau: float = 0.01,
+        gamma: float = 0.99,
+        train_freq: int = 2,
+        gradient_steps: int = 1,
+        n_steps: int = 3,
+        exploration_std: float = 0.2,
+        exploration_clip: float = 0.3,
+        reward_free: bool | None = None,
+        skill_prior: SkillPrior | None = None,
+        skill_resample_every: int | None = 50,
+        replay_buffer_kwargs: dict[str, Any] | None = None,
+        stats_window_size: int = 100,
+        tensorboard_log: str | None = None,
+        policy_kwargs: dict[str, Any] | None = None,
+        verbose: int = 0,
+        seed: int | None = None,
+        device: th.device | str = "auto",
+        _init_setup_model: bool = True,
+    ) -> None:
+        if _init_setup_model:  # ``load`` prepares the env itself, with the saved prior
+            env = prepare_env(env, skill_prior, skill_resample_every)
+        super().__init__(
+            policy,
+            env,
+            learning_rate=learning_rate,
+            buffer_size=buffer_size,
+            learning_starts=learning_starts,
+            batch_size=batch_size,
+            tau=tau,
+            gamma=gamma,
+            train_freq=train_freq,
+            gradient_steps=gradient_steps,
+            replay_buffer_class=URLBReplayBuffer,
+            replay_buffer_kwargs=replay_buffer_kwargs,
+            tensorboard_log=tensorboard_log,
+            policy_kwargs=policy_kwargs,
+            verbose=verbose,
+            seed=seed,
+            device=device,
+            _init_setup_model=False,
+        )
+        self.policy_kwargs.pop("n_critics", None)
+        self.n_steps = n_steps
+        self._stats_window_size = stats_window_size
+        self.exploration_std = exploration_std
+        self.exploration_clip = exploration_clip
+        self.skill_prior = skill_prior
+        self.skill_resample_every = skill_resample_every
+        self.reward_free = reward_free
+        #: act with the policy (instead of uniformly) during the first ``learning_starts`` steps
+        self.warmup_with_policy = False
+        #: the skill chosen for fine-tuning, once a skill-selection callback has chosen it
+        self.finetune_skill: np.ndarray | None = None
+        self.reward_module: RewardModule | None = None
+        if _init_setup_model:
+            self._setup_model()
+
+    # construction -----------------------------------------------------------------------------
+    @property
+    def skill_dim(self) -> int:
+        """Size of the skill appended to the observation (0 without a skill prior)."""
+        return 0 if self.skill_prior is None else self.skill_prior.dim
+
+    @property
+    def state_dim(self) -> int:
+        """Size of the state part of the observation."""
+        return int(self.observation_space.shape[0]) - self.skill_dim
+
+    @property
+    def hidden_dim(self) -> int:
+        """Hidden width of actor and critic."""
+        return int(self.policy_kwargs.get("hidden_dim", 1024))
+
+    def _make_reward_module(self) -> RewardModule | None:
+        """Build the intrinsic reward module (None for plain DDPG). Overridden by the methods."""
+        return None
+
+    def _setup_model(self) -> None:
+        if self.action_noise is None:
+            act_dim = int(np.prod(self.action_space.shape))
+            self.action_noise = NormalActionNoise(np.zeros(act_dim), self.exploration_std * np.ones(act_dim))
+        self.replay_buffer_kwargs = {
+            **self.replay_buffer_kwargs,
+            "n_steps": self.n_steps,
+            "gamma": self.gamma,
+            "skill_dim": self.skill_dim,
+        }
+        n_steps, self.n_steps = self.n_steps, 1  # n-step returns are configured on our buffer
+        super()._setup_model()
+        self.n_steps = n_steps
+        self.reward_module = self._make_reward_module()
+        if self.reward_module is not None:
+            self.reward_module.to(self.device)
+        if self.reward_free is None:
+            self.reward_free = self.reward_module is not None
+        if self.reward_free and self.reward_module is None:
+            raise ValueError(f"{type(self).__name__} has no intrinsic reward module: reward_free must be False")
+        self._critic_params = list(self.critic.parameters())
+        self._critic_target_params = list(self.critic_target.parameters())
+        self._install_relabel()
+
+    def _install_relabel(self) -> None:
+        assert isinstance(self.replay_buffer, URLBReplayBuffer)
+        self.replay_buffer.relabel = self._relabel if self.reward_free else None
+
+    def load_replay_buffer(self, path: Any, truncate_last_traj: bool = True) -> None:
+        super().load_replay_buffer(path, truncate_last_traj)
+        self._install_relabel()
+
+    # skills -------------------------------------------------------------------------------------
+    def set_skill(self, skill: np.ndarray, fixed: bool = True) -> None:
+        """Set the skill of every training env (and of the pending observation).
+
+        :param skill: a skill of the prior's support
+        :param fixed: keep it fixed instead of resampling
+        """
+        if self.skill_prior is None:
+            raise ValueError(f"{type(self).__name__} has no skill")
+        z = self.skill_prior.validate(skill)
+        assert self.env is not None
+        self.env.env_method("set_skill", z, fixed)
+        if self._last_obs is not None:
+            self._last_obs[:, -self.skill_dim :] = z  # type: ignore[index]
+
+    def make_finetune_callback(self) -> BaseCallback | None:
+        """The skill-selection callback :meth:`learn` adds when fine-tuning a skill-based method."""
+        return None
+
+    # the update ---------------------------------------------------------------------------------
+    def _relabel(self, data: ReplayBufferSamples) -> ReplayBufferSamples:
+        assert self.reward_module is not None
+        reward, metrics = self.reward_module.update_and_reward(data)
+        metrics["intrinsic_reward_mean"] = reward.mean()
+        metrics["intrinsic_reward_std"] = reward.std()
+        self._reward_metrics = metrics
+        return data._replace(rewards=reward)
+
+    def _noisy(self, mu: th.Tensor) -> th.Tensor:
+        """``mu`` plus clipped gaussian noise, clamped to (-1, 1) with a straight-through gradient."""
+        noise = th.randn_like(mu).mul_(self.exploration_std).clamp_(-self.exploration_clip, self.exploration_clip)
+        action = mu + noise
+        return action - action.detach() + action.detach().clamp(-1.0 + 1e-6, 1.0 - 1e-6)
+
+    def critic_loss(self, data: ReplayBufferSamples) -> tuple[th.Tensor, th.Tensor]:
+        """Twin-critic loss ``MSE(Q1, y) + MSE(Q2, y)`` and the mean target ``y``."""
+        with th.no_grad():
+            next_actions = self._noisy(self.actor(data.next_observations))
+            next_q = th.min(*self.critic_target(data.next_observations, next_actions))
+            discounts = data.discounts if data.discounts is not None else self.gamma
+            target_q = data.rewards + (1.0 - data.dones) * discounts * next_q
+        q1, q2 = self.critic(data.observations, data.actions)
+        return F.mse_loss(q1, target_q) + F.mse_loss(q2, target_q), target_q.mean()
+
+    def actor_loss(self, obs: th.Tensor) -> th.Tensor:
+        """``-min(Q1, Q2)`` at the noisy, clipped action of the actor."""
+        return -th.min(*self.critic(obs, self._noisy(self.actor(obs)))).mean()
+
+    def _update(self, data: ReplayBufferSamples) -> dict[str, th.Tensor]:
+        critic_loss, target_q = self.critic_loss(data)
+        self.critic.optimizer.zero_grad(set_to_none=True)
+        critic_loss.backward()
+        self.critic.optimizer.step()
+
+        for param in self._critic_params:  # no critic weight gradients in the actor step
+            param.requires_grad_(False)
+        actor_loss = self.actor_loss(data.observations)
+        self.actor.optimizer.zero_grad(set_to_none=True)
+        actor_loss.backward()
+        self.actor.optimizer.step()
+        for param in self._critic_params:
+            param.requires_grad_(True)
+
+        with th.no_grad():
+            th._foreach_lerp_(self._critic_target_params, self._critic_params, self.tau)
+        return {"critic_loss": critic_loss.detach(), "actor_loss": actor_loss.detach(), "target_q": target_q}
+
+    def train(self, gradient_steps: int, batch_size: int = 100) -> None:
+        self.policy.set_training_mode(True)
+        self._update_learning_rate([self.actor.optimizer, self.critic.optimizer])
+        for _ in range(gradient_steps):
+            self._n_updates += 1
+            data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[union-attr]
+            metrics = self._update(data)
+
+        self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
+        for key, value in metrics.items():
+            self.logger.record(f"train/{key}", value.item())
+        if self.reward_free:
+            for key, value in self._reward_metrics.items():
+                self.logger.record(f"reward/{key}", value.item())
+        if self.skill_prior is not None and self.env is not None:
+            self.logger.record("train/skill_fixed", float(np.mean(self.env.get_attr("fixed"))))
+
+    def _sample_action(
+        self, learning_starts: int, action_noise: Any = None, n_envs: int = 1
+    ) -> tuple[np.ndarray, np.ndarray]:
+        return super()._sample_action(0 if self.warmup_with_policy else learning_starts, action_noise, n_envs)
+
+    def learn(
+        self: SelfURLBDDPG,
+        total_timesteps: int,
+        callback: MaybeCallback = None,
+        log_interval: int = 4,
+        tb_log_name: str | None = None,
+        reset_num_timesteps: bool = True,
+        progress_bar: bool = False,
+    ) -> SelfURLBDDPG:
+        """Train for ``total_timesteps`` env steps (see SB3's ``learn``).
+
+        When fine-tuning a skill-based method, the method's skill-selection callback
+        (:meth:`make_finetune_callback`) runs first unless ``callback`` already holds one.
+        """
+        return super().learn(
+            total_timesteps,
+            callback=self._with_finetune_callback(callback),
+            log_interval=log_interval,
+            tb_log_name=tb_log_name or type(self).__name__,
+            reset_num_timesteps=reset_num_timesteps,
+            progress_bar=progress_bar,
+        )
+
+    def _with_finetune_callback(self, callback: MaybeCallback) -> MaybeCallback:
+        from sb3_cic.callbacks import SkillSelectionCallback
+
+        if self.reward_free or self.skill_prior is None:
+            return callback
+        user = callback if isinstance(callback, list) else [] if callback is None else [callback]
+        flat = [c for cb in user for c in (cb.callbacks if isinstance(cb, CallbackList) else [cb])]
+        if any(isinstance(c, SkillSelectionCallback) for c in flat):
+            return callback
+        selection = self.make_finetune_callback()
+        if selection is None:
+            return callback
+        return CallbackList([selection, *user])
+
+    # save / load / fine-tune --------------------------------------------------------------------
+    def _excluded_save_params(self) -> list[str]:
+        return [*super()._excluded_save_params(), "reward_module", "_critic_params", "_critic_target_params", "_reward_metrics"]
+
+    def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
+        state_dicts, variables = super()._get_torch_save_params()
+        if self.reward_module is not None:
+            state_dicts += ["reward_module", "reward_module.optimizer"]
+        return state_dicts, variables
+
+    @classmethod
+    def load(  # type: ignore[override]
+        cls: type[SelfURLBDDPG],
+        path: Any,
+        env: GymEnv | str | None = None,
+        device: th.device | str = "auto",
+        custom_objects: dict[str, Any] | None = None,
+        print_system_info: bool = False,
+        force_reset: bool = True,
+        **kwargs: Any,
+    ) -> SelfURLBDDPG:
+        """Load a saved model (see SB3's ``load``); ``env`` may be an id and is wrapped with the saved skill prior."""
+        if env is not None:
+            data, _, _ = load_from_zip_file(path, device=device, custom_objects=custom_objects)
+            assert data is not None
+            env = prepare_env(env, data.get("skill_prior"), data.get("skill_resample_every", 50))
+        return super().load(  # type: ignore[return-value]
+            path, env=env, device=device, custom_objects=custom_objects,
+            print_system_info=print_system_info, force_reset=force_reset, **kwargs,
+        )
+
+    @classmethod
+    def load_pretrained(
+        cls: type[SelfURLBDDPG],
+        path: Any,
+        env: GymEnv | str,
+        finetune_critic: str | None = None,
+        device: th.device | str = "auto",
+        **kwargs: Any,
+    ) -> SelfURLBDDPG:
+        """Start fine-tuning on a task from a pre-trained model.
+
+        Keeps the actor, the reward module and the critic (its trunk only by default, as URLB), with
+        fresh optimisers, an empty replay buffer, the extrinsic reward (``reward_free=False``) and step 0.
+
+        :param path: saved pre-trained model
+        :param env: the task environment (id, env or VecEnv)
+        :param finetune_critic: "trunk", "all" or "none" (default: the class's :attr:`finetune_critic`)
+        :param device: torch device
+        :param kwargs: attributes to override (for example ``learning_starts``, ``tensorboard_log``)
+        """
+        model = cls.load(path, env=env, device=device, reward_free=False, **kwargs)
+        keep = finetune_critic or cls.finetune_critic
+        if keep not in ("trunk", "all", "none"):
+            raise ValueError(f"finetune_critic must be 'trunk', 'all' or 'none', got {keep!r}")
+        if keep == "trunk":
+            model.critic.reset_heads()
+        elif keep == "none":
+            model.policy.critic = model.critic = model.policy.make_critic()
+        model.critic_target.load_state_dict(model.critic.state_dict())
+        policy = model.policy
+        lr = model.lr_schedule(1)
+        model.actor.optimizer = policy.optimizer_class(model.actor.parameters(), lr=lr, **policy.optimizer_kwargs)
+        model.critic.optimizer = policy.optimizer_class(model.critic.parameters(), lr=lr, **policy.optimizer_kwargs)
+        model._critic_params = list(model.critic.parameters())
+        model.finetune_skill = None
+        model.num_timesteps = 0
+        model._n_updates = 0
+        model._episode_num = 0
+        model._install_relabel()
+        return model

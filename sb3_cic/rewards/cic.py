@@ -1,0 +1,87 @@
+"""CIC's reward module: the contrastive skill discriminator and the particle-entropy reward."""
+
+from __future__ import annotations
+
+import torch as th
+import torch.nn.functional as F
+from stable_baselines3.common.type_aliases import ReplayBufferSamples
+
+from sb3_cic.rewards.base import RewardModule, mlp
+from sb3_cic.rewards.particle import ParticleEntropy
+
+
+class CICReward(RewardModule):
+    """Contrastive Intrinsic Control (Laskin et al., 2022).
+
+    * ``state_net`` g1: state -> h -> h -> skill_dim, applied to s and s';
+      ``pred_net``: [g1(s), g1(s')] -> h -> h -> skill_dim (the key);
+      ``skill_net`` g2: skill -> h -> h -> skill_dim (the query).
+    * Loss (paper, Listing 2): cross-entropy of ``normalize(q) normalize(k)^T / temperature`` with the
+      diagonal as positives. (The reference code subtracts exp(1/T) from the denominator; not followed.)
+    * Reward: particle entropy (k nearest neighbours in the batch) of ``g1(s')``.
+
+    :meth:`update_and_reward` computes ``g1(s)`` and ``g1(s')`` once for both the loss and the reward
+    (the reward uses the networks as they were when the batch was sampled).
+
+    :param state_dim: state size
+    :param action_dim: action size
+    :param skill_dim: skill size (64)
+    :param hidden_dim: hidden width of the three networks (1024)
+    :param lr: Adam learning rate (1e-4)
+    :param temperature: contrastive temperature (0.5)
+    :param knn_k: neighbours of the entropy estimator (12)
+    :param knn_clip: clip of the entropy estimator (0.0005)
+    :param knn_avg: average the k distances
+    :param knn_rms: divide by the running mean of the distances
+    """
+
+    def __init__(
+        self,
+        state_dim: int,
+        action_dim: int,
+        skill_dim: int = 64,
+        hidden_dim: int = 1024,
+        lr: float = 1e-4,
+        temperature: float = 0.5,
+        knn_k: int = 12,
+        knn_clip: float = 0.0005,
+        knn_avg: bool = True,
+        knn_rms: bool = True,
+    ) -> None:
+        super().__init__(state_dim, action_dim, skill_dim, lr)
+        self.temperature = temperature
+        self.state_net = mlp(state_dim, hidden_dim, skill_dim)
+        self.pred_net = mlp(2 * skill_dim, hidden_dim, skill_dim)
+        self.skill_net = mlp(skill_dim, hidden_dim, skill_dim)
+        self.particle = ParticleEntropy(k=knn_k, avg=knn_avg, rms=knn_rms, clip=knn_clip)
+        self.make_optimizer()
+
+    def contrastive_loss(self, query: th.Tensor, key: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
+        """Cross-entropy of the normalised ``query @ key.T / T`` with diagonal labels; also top-1 accuracy."""
+        logits = F.normalize(query, dim=1) @ F.normalize(key, dim=1).T / self.temperature
+        labels = th.arange(logits.shape[0], device=logits.device)
+        accuracy = (logits.argmax(dim=1) == labels).float().mean()
+        return F.cross_entropy(logits, labels), accuracy
+
+    def _loss(self, batch: ReplayBufferSamples) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
+        state, skill = self.split(batch.observations)
+        next_state = batch.next_observations[:, : self.state_dim]
+        embedding = self.state_net(th.cat([state, next_state], dim=0))
+        key = self.pred_net(th.cat(embedding.chunk(2, dim=0), dim=1))
+        loss, accuracy = self.contrastive_loss(self.skill_net(skill), key)
+        return loss, accuracy, embedding[state.shape[0] :]
+
+    def update(self, batch: ReplayBufferSamples) -> dict[str, th.Tensor]:
+        loss, accuracy, _ = self._loss(batch)
+        self.optimizer_step(loss)
+        return {"contrastive_loss": loss.detach(), "disc_accuracy": accuracy}
+
+    def reward(self, batch: ReplayBufferSamples) -> th.Tensor:
+        return self.particle(self.state_net(batch.next_observations[:, : self.state_dim]))
+
+    def update_and_reward(self, batch: ReplayBufferSamples) -> tuple[th.Tensor, dict[str, th.Tensor]]:
+        loss, accuracy, next_embedding = self._loss(batch)
+        with th.no_grad():
+            reward = self.particle(next_embedding.detach())
+        self.optimizer_step(loss)
+        return reward, {"contrastive_loss": loss.detach(), "disc_accuracy": accuracy}

@@ -1,0 +1,77 @@
+"""Particle-based (k-nearest-neighbour) entropy estimator of APT, shared by CIC, APT and APS."""
+
+from __future__ import annotations
+
+import torch as th
+from torch import nn
+
+
+class RunningMeanStd(nn.Module):
+    """Running mean and variance of a stream of batches (URLB's ``RMS``), saved in ``state_dict``.
+
+    :param epsilon: initial pseudo-count
+    :param shape: shape of one sample
+    """
+
+    def __init__(self, epsilon: float = 1e-4, shape: tuple[int, ...] = (1,)) -> None:
+        super().__init__()
+        self.register_buffer("mean", th.zeros(shape))
+        self.register_buffer("var", th.ones(shape))
+        self.register_buffer("count", th.tensor(epsilon, dtype=th.float64))
+
+    @th.no_grad()
+    def update(self, x: th.Tensor) -> None:
+        """Fold the batch ``x`` (first dimension = samples) into the statistics."""
+        n = x.shape[0]
+        count = self.count.to(x.dtype)
+        delta = x.mean(dim=0) - self.mean
+        total = count + n
+        self.var.copy_((self.var * count + x.var(dim=0) * n + delta.pow(2) * count * n / total) / total)
+        self.mean.add_(delta * n / total)
+        self.count.add_(n)
+
+
+def knn_distances(source: th.Tensor, target: th.Tensor, k: int) -> th.Tensor:
+    """Euclidean distances from each ``source`` row to its ``k`` nearest ``target`` rows, ascending.
+
+    Computed from matrix products (``|a|^2 + |b|^2 - 2 a.b``) and ``topk``; no ``B x B x D`` tensor.
+    When ``source`` is ``target`` a point is its own first neighbour (distance 0), as in URLB.
+
+    :param source: ``(B1, D)``
+    :param target: ``(B2, D)``
+    :param k: number of neighbours (``<= B2``)
+    :return: ``(B1, k)``
+    """
+    sq = (source.pow(2).sum(1, keepdim=True) + target.pow(2).sum(1).unsqueeze(0)).addmm_(source, target.T, alpha=-2.0)
+    nearest = th.topk(sq, k, dim=1, largest=False, sorted=True).values
+    return nearest.clamp_(min=0.0).sqrt_()
+
+
+class ParticleEntropy(nn.Module):
+    """APT's particle entropy reward: ``log(c + x)`` of the (normalised, clipped) kNN distance.
+
+    With ``avg=True``: ``x = max(mean_k(d) / m - clip, 0)``, where ``m`` is the running mean of the
+    distances when ``rms=True`` (1 otherwise); with ``avg=False`` the k-th distance replaces the mean.
+
+    :param k: number of neighbours (URLB and the CIC paper: 12)
+    :param avg: average over the k neighbours (else keep the k-th)
+    :param rms: divide by the running mean of the kNN distances
+    :param clip: subtracted before flooring at 0
+    :param c: constant inside the log
+    """
+
+    def __init__(self, k: int = 12, avg: bool = True, rms: bool = True, clip: float = 0.0005, c: float = 1.0) -> None:
+        super().__init__()
+        self.k, self.avg, self.use_rms, self.clip, self.c = k, avg, rms, clip, c
+        self.rms = RunningMeanStd()
+
+    def forward(self, source: th.Tensor, target: th.Tensor | None = None) -> th.Tensor:
+        """Reward of each ``source`` row against the ``target`` particles (default: ``source``), ``(B, 1)``."""
+        target = source if target is None else target
+        dist = knn_distances(source, target, min(self.k, target.shape[0]))
+        x = dist.mean(dim=1, keepdim=True) if self.avg else dist[:, -1:]
+        if self.use_rms:
+            self.rms.update(dist.reshape(-1, 1))
+            x = x / self.rms.mean
+        x = th.clamp_min(x - self.clip, 0.0) if self.clip >= 0 else x
+        return th.log(self.c + x)
