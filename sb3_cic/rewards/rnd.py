@@ -1,0 +1,78 @@
+"""RND's reward module: a predictor regressing a frozen random network, reward = prediction error."""
+
+from __future__ import annotations
+
+import torch as th
+from stable_baselines3.common.type_aliases import ReplayBufferSamples
+from torch import nn
+
+from sb3_cic.policies import orthogonal_init
+from sb3_cic.rewards.base import RewardModule, mlp
+from sb3_cic.rewards.particle import RunningMeanStd
+
+
+class RNDReward(RewardModule):
+    """Random Network Distillation (Burda et al., 2019), as in URLB (``agent/rnd.py``).
+
+    * The state is normalised by ``BatchNorm1d(affine=False)`` (batch statistics in training mode,
+      the module's default) and clipped to ``+-clip``.
+    * ``predictor`` and a frozen random ``target``: ``state -> h -> h -> rep_dim``.
+    * Loss: the mean over the batch of ``e = mean_j (target_j - predictor_j)^2``.
+    * Reward: ``scale * e / (sqrt(running var of e) + 1e-8)``; each reward call updates the running
+      statistics (:class:`~sb3_cic.rewards.particle.RunningMeanStd`) first.
+
+    Like every module here it scores the transition's next state ``s'`` (the reference: ``s``).
+
+    :param state_dim: state size
+    :param action_dim: action size
+    :param hidden_dim: hidden width (1024)
+    :param rep_dim: output size of predictor and target (512)
+    :param lr: Adam learning rate (1e-4)
+    :param clip: clip of the normalised state (5)
+    :param scale: reward scale (1)
+    """
+
+    def __init__(
+        self,
+        state_dim: int,
+        action_dim: int,
+        hidden_dim: int = 1024,
+        rep_dim: int = 512,
+        lr: float = 1e-4,
+        clip: float = 5.0,
+        scale: float = 1.0,
+    ) -> None:
+        super().__init__(state_dim, action_dim, 0, lr)
+        self.clip, self.scale = clip, scale
+        self.normalize = nn.BatchNorm1d(state_dim, affine=False)
+        self.predictor = mlp(state_dim, hidden_dim, rep_dim)
+        self.target = mlp(state_dim, hidden_dim, rep_dim)
+        self.apply(orthogonal_init)
+        self.target.requires_grad_(False)
+        self.error_rms = RunningMeanStd()
+        self.make_optimizer()
+
+    def prediction_error(self, state: th.Tensor) -> th.Tensor:
+        """``mean_j (target_j - predictor_j)^2`` of the normalised, clipped state, ``(batch, 1)``."""
+        x = self.normalize(state).clamp(-self.clip, self.clip)
+        return (self.target(x) - self.predictor(x)).pow(2).mean(dim=1, keepdim=True)
+
+    def _reward(self, error: th.Tensor) -> th.Tensor:
+        self.error_rms.update(error)
+        return self.scale * error / (self.error_rms.var.sqrt() + 1e-8)
+
+    def _step(self, error: th.Tensor) -> dict[str, th.Tensor]:
+        loss = error.mean()
+        self.optimizer_step(loss)
+        return {"rnd_loss": loss.detach(), "error_running_std": self.error_rms.var.sqrt().squeeze()}
+
+    def update(self, batch: ReplayBufferSamples) -> dict[str, th.Tensor]:
+        return self._step(self.prediction_error(self.split(batch.next_observations)[0]))
+
+    def reward(self, batch: ReplayBufferSamples) -> th.Tensor:
+        return self._reward(self.prediction_error(self.split(batch.next_observations)[0]))
+
+    def update_and_reward(self, batch: ReplayBufferSamples) -> tuple[th.Tensor, dict[str, th.Tensor]]:
+        error = self.prediction_error(self.split(batch.next_observations)[0])
+        reward = self._reward(error.detach())
+        return reward, self._step(error)
