@@ -12,7 +12,7 @@ Actions are drawn before the timed loop, so only the environments are timed. Eac
 repeated ``--repeats`` times, interleaving the three kinds, and the best is kept (the least
 disturbed by other processes). ``overhead`` is raw steps/s divided by ours (1.00 = no overhead).
 
-Usage: ``MUJOCO_GL=disable python benchmarks/env_speed.py --steps 5000``
+Usage: ``MUJOCO_GL=disable python benchmarks/env_speed.py --steps 2000 --repeats 5``
 """
 
 from __future__ import annotations
@@ -113,8 +113,8 @@ def benchmark(domain: str, task: str, steps: int, repeats: int) -> dict[str, flo
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--steps", type=int, default=5000, help="steps per run (jaco runs a fifth of them)")
-    parser.add_argument("--repeats", type=int, default=3, help="runs per kind; the best is kept")
+    parser.add_argument("--steps", type=int, default=2000, help="steps per run (jaco runs a fifth of them)")
+    parser.add_argument("--repeats", type=int, default=5, help="runs per kind; the best is kept")
     args = parser.parse_args()
 
     header = f"{'environment':<26}{'steps':>7}{'raw/s':>10}{'shimmy/s':>10}{'ours/s':>10}{'shimmy ovh':>12}{'ours ovh':>10}"

@@ -8,13 +8,22 @@ from sb3_cic.buffers import URLBReplayBuffer
 from sb3_cic.callbacks import FixedSkillCallback, SkillGridSweepCallback, SkillSelectionCallback, URLBEvalCallback
 from sb3_cic.constants import EXPERT_SCORES, normalized_score
 from sb3_cic.ddpg import URLBDDPG
-from sb3_cic.methods import CIC
+from sb3_cic.methods import APS, APT, CIC, DIAYN, ICM, RND, SMM, APSRegressionCallback, Disagreement, ProtoRL
 from sb3_cic.skills import OneHotSkillPrior, SkillPrior, SphereSkillPrior, UniformSkillPrior
 
 __version__ = "0.1.0"
 
 __all__ = [
     "CIC",
+    "ICM",
+    "Disagreement",
+    "RND",
+    "APT",
+    "ProtoRL",
+    "DIAYN",
+    "SMM",
+    "APS",
+    "APSRegressionCallback",
     "URLBDDPG",
     "URLBReplayBuffer",
     "SkillPrior",

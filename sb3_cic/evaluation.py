@@ -1,0 +1,270 @@
+"""Score report of a study: per-task returns, normalised scores and rliable aggregates.
+
+Reads ``<study>/finetune/<label>/<task>/seed_<k>/result.json`` and ``eval.csv`` (written by
+:mod:`sb3_cic.protocol`) and writes into the study folder:
+
+* ``report.md``: per-task mean and standard error (over seeds) of the final return and normalised
+  score; per method the IQM, median, mean and optimality gap of normalised scores over the
+  runs x tasks matrix with stratified-bootstrap 95% intervals (rliable, Agarwal et al., 2021);
+  wall times;
+* ``report.json``: the same numbers;
+* ``aggregates.png`` (rliable's ``plot_interval_estimates``) and ``learning_curves.png``
+  (evaluation return against fine-tuning steps, mean +- s.e. over seeds, one panel per task).
+
+The runs of a method are the seeds it has on every one of its tasks (rliable needs a full matrix).
+Aggregates need normalised scores, i.e. tasks with an expert score.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+from collections import defaultdict
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+#: rliable aggregate metrics, in report order
+METRICS: tuple[str, ...] = ("IQM", "Median", "Mean", "Optimality Gap")
+
+
+def load_results(study: str | Path) -> list[dict[str, Any]]:
+    """All fine-tuning ``result.json`` of a study, with their ``eval.csv`` as ``curve`` (timestep, return) arrays."""
+    results = []
+    for path in sorted(Path(study).glob("finetune/*/*/seed_*/result.json")):
+        result = json.loads(path.read_text())
+        steps, returns = [], []
+        eval_csv = path.parent / "eval.csv"
+        if eval_csv.exists():
+            with open(eval_csv) as file:
+                for row in csv.DictReader(file):
+                    steps.append(int(row["timestep"]))
+                    returns.append(float(row["mean_return"]))
+        result["curve"] = (np.asarray(steps), np.asarray(returns))
+        results.append(result)
+    return results
+
+
+def _mean_se(values: Sequence[float]) -> tuple[float, float]:
+    values = np.asarray(values, dtype=float)
+    se = float(values.std(ddof=1) / np.sqrt(len(values))) if len(values) > 1 else float("nan")
+    return float(values.mean()), se
+
+
+def per_task(results: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Per (method label, task): seeds, mean and s.e. of the final return and of the normalised score."""
+    groups: dict[tuple[str, str], list[dict[str, Any]]] = defaultdict(list)
+    for result in results:
+        groups[(result["label"], result["task"])].append(result)
+    rows = []
+    for (label, task), runs in sorted(groups.items()):
+        runs = sorted(runs, key=lambda r: r["seed"])
+        ret_mean, ret_se = _mean_se([r["final_return"] for r in runs])
+        scores = [r["final_normalized_score"] for r in runs]
+        score_mean, score_se = _mean_se(scores) if all(s is not None for s in scores) else (float("nan"), float("nan"))
+        rows.append(
+            {
+                "method": label,
+                "task": task,
+                "seeds": [r["seed"] for r in runs],
+                "n": len(runs),
+                "return_mean": ret_mean,
+                "return_se": ret_se,
+                "score_mean": score_mean,
+                "score_se": score_se,
+                "finetune_wall_s": float(np.mean([r["wall_time_s"]["finetune"] for r in runs])),
+                "pretrain_wall_s": runs[0]["wall_time_s"].get("pretrain"),
+            }
+        )
+    return rows
+
+
+def score_matrices(results: list[dict[str, Any]]) -> tuple[dict[str, np.ndarray], dict[str, list[str]], dict[str, list[int]]]:
+    """Per method label, the ``(runs, tasks)`` matrix of normalised scores (seeds common to all its tasks).
+
+    Methods with a task without normalised score are left out.
+    """
+    by_label: dict[str, dict[str, dict[int, float | None]]] = defaultdict(lambda: defaultdict(dict))
+    for result in results:
+        by_label[result["label"]][result["task"]][result["seed"]] = result["final_normalized_score"]
+    matrices, tasks_of, seeds_of = {}, {}, {}
+    for label, tasks in sorted(by_label.items()):
+        names = sorted(tasks)
+        seeds = sorted(set.intersection(*(set(tasks[t]) for t in names)))
+        if not seeds or any(tasks[t][s] is None for t in names for s in seeds):
+            continue
+        matrices[label] = np.array([[tasks[t][s] for t in names] for s in seeds], dtype=float)
+        tasks_of[label], seeds_of[label] = names, seeds
+    return matrices, tasks_of, seeds_of
+
+
+def aggregate_scores(matrices: dict[str, np.ndarray], reps: int = 2000, seed: int = 0) -> dict[str, dict[str, dict[str, float]]]:
+    """IQM, median, mean and optimality gap with stratified-bootstrap 95% intervals (rliable).
+
+    :param matrices: per method, a ``(runs, tasks)`` matrix of normalised scores
+    :param reps: bootstrap replications
+    :param seed: seed of the bootstrap
+    :return: ``{method: {metric: {"point", "low", "high"}}}``
+    """
+    from rliable import library as rly
+    from rliable import metrics
+
+    if not matrices:
+        return {}
+
+    def aggregates(scores: np.ndarray) -> np.ndarray:
+        return np.array(
+            [
+                metrics.aggregate_iqm(scores),
+                metrics.aggregate_median(scores),
+                metrics.aggregate_mean(scores),
+                metrics.aggregate_optimality_gap(scores),
+            ]
+        )
+
+    points, intervals = rly.get_interval_estimates(
+        matrices, aggregates, reps=reps, random_state=np.random.RandomState(seed)
+    )
+    return {
+        label: {
+            name: {"point": float(points[label][i]), "low": float(intervals[label][0, i]), "high": float(intervals[label][1, i])}
+            for i, name in enumerate(METRICS)
+        }
+        for label in matrices
+    }
+
+
+def _fmt(value: float | None, digits: int = 3) -> str:
+    return "–" if value is None or (isinstance(value, float) and math.isnan(value)) else f"{value:.{digits}f}"
+
+
+def _pm(mean: float, se: float, digits: int) -> str:
+    return _fmt(mean, digits) if math.isnan(se) else f"{_fmt(mean, digits)} ± {_fmt(se, digits)}"
+
+
+def plot_aggregates(aggregates: dict[str, dict[str, dict[str, float]]], path: Path) -> None:
+    """rliable's interval plot of the aggregates."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from rliable import plot_utils
+
+    labels = sorted(aggregates)
+    points = {m: np.array([aggregates[m][k]["point"] for k in METRICS]) for m in labels}
+    intervals = {m: np.array([[aggregates[m][k]["low"] for k in METRICS], [aggregates[m][k]["high"] for k in METRICS]]) for m in labels}
+    fig, _ = plot_utils.plot_interval_estimates(
+        points, intervals, metric_names=list(METRICS), algorithms=labels, xlabel="Normalized score", xlabel_y_coordinate=-0.3
+    )
+    fig.savefig(path, dpi=120, bbox_inches="tight")
+    plt.close(fig)
+
+
+def plot_learning_curves(results: list[dict[str, Any]], path: Path) -> None:
+    """Evaluation return against fine-tuning steps, mean +- s.e. over seeds, one panel per task."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    tasks = sorted({r["task"] for r in results})
+    labels = sorted({r["label"] for r in results})
+    cols = min(4, max(1, len(tasks)))
+    rows = math.ceil(len(tasks) / cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(4 * cols, 3 * rows), squeeze=False)
+    for ax, task in zip(axes.flat, tasks):
+        for label in labels:
+            curves = [r["curve"] for r in results if r["task"] == task and r["label"] == label and len(r["curve"][0])]
+            if not curves:
+                continue
+            steps = curves[0][0]
+            same = [c[1] for c in curves if np.array_equal(c[0], steps)]
+            values = np.stack(same)
+            mean = values.mean(axis=0)
+            se = values.std(axis=0, ddof=1) / np.sqrt(len(same)) if len(same) > 1 else np.zeros_like(mean)
+            ax.plot(steps, mean, label=f"{label} ({len(same)})")
+            ax.fill_between(steps, mean - se, mean + se, alpha=0.25)
+        ax.set_title(task)
+        ax.set_xlabel("fine-tuning steps")
+        ax.set_ylabel("return")
+        ax.grid(alpha=0.3)
+    for ax in list(axes.flat)[len(tasks) :]:
+        ax.axis("off")
+    axes.flat[0].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def write_report(study: str | Path, reps: int = 2000, seed: int = 0) -> dict[str, Any]:
+    """Write ``report.md``, ``report.json``, ``aggregates.png`` and ``learning_curves.png`` into ``study``.
+
+    :param study: study folder
+    :param reps: bootstrap replications of the intervals
+    :param seed: seed of the bootstrap
+    :return: the ``report.json`` content
+    """
+    study = Path(study)
+    results = load_results(study)
+    if not results:
+        raise FileNotFoundError(f"no fine-tuning results under {study / 'finetune'}")
+    rows = per_task(results)
+    matrices, tasks_of, seeds_of = score_matrices(results)
+    aggregates = aggregate_scores(matrices, reps=reps, seed=seed)
+
+    lines = [f"# URLB report: `{study.name}`", ""]
+    lines += [
+        "Final return = mean return of the last evaluation (deterministic episodes) of each run; "
+        "normalised score = return / expert score. Mean ± standard error over seeds.",
+        "",
+        "## Per task",
+        "",
+        "| method | task | seeds | final return | normalised score |",
+        "|---|---|---:|---:|---:|",
+    ]
+    for row in rows:
+        lines.append(
+            f"| {row['method']} | {row['task']} | {row['n']} | {_pm(row['return_mean'], row['return_se'], 1)} "
+            f"| {_pm(row['score_mean'], row['score_se'], 3)} |"
+        )
+    lines += ["", f"## Aggregates (normalised scores, rliable, stratified bootstrap 95% CI, {reps} reps)", ""]
+    if aggregates:
+        lines += ["| method | runs x tasks | IQM | median | mean | optimality gap |", "|---|---:|---:|---:|---:|---:|"]
+        for label, agg in aggregates.items():
+            cells = [f"{_fmt(agg[k]['point'])} [{_fmt(agg[k]['low'])}, {_fmt(agg[k]['high'])}]" for k in METRICS]
+            lines.append(f"| {label} | {len(seeds_of[label])} x {len(tasks_of[label])} | " + " | ".join(cells) + " |")
+        plot_aggregates(aggregates, study / "aggregates.png")
+        lines += ["", "![aggregates](aggregates.png)"]
+    else:
+        lines.append("No method has normalised scores on all its tasks (no expert score): no aggregates.")
+    plot_learning_curves(results, study / "learning_curves.png")
+    lines += ["", "## Learning curves", "", "![learning curves](learning_curves.png)", "", "## Wall time", ""]
+    lines += ["| method | task | pre-training (s) | fine-tuning per run (s) |", "|---|---|---:|---:|"]
+    for row in rows:
+        lines.append(f"| {row['method']} | {row['task']} | {_fmt(row['pretrain_wall_s'], 1)} | {_fmt(row['finetune_wall_s'], 1)} |")
+    (study / "report.md").write_text("\n".join(lines) + "\n")
+
+    report = {
+        "study": str(study),
+        "reps": reps,
+        "per_task": rows,
+        "aggregates": aggregates,
+        "matrices": {label: {"tasks": tasks_of[label], "seeds": seeds_of[label], "scores": m.tolist()} for label, m in matrices.items()},
+    }
+    (study / "report.json").write_text(json.dumps(report, indent=2, default=float))
+    return report
+
+
+def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
+    """``sb3-cic report <study>``."""
+    parser = argparse.ArgumentParser(prog="sb3-cic report", description="Score report of a URLB study folder.")
+    parser.add_argument("study", help="study folder (written by sb3-cic protocol)")
+    parser.add_argument("--reps", type=int, default=2000, help="bootstrap replications")
+    parser.add_argument("--seed", type=int, default=0, help="bootstrap seed")
+    args = parser.parse_args(argv)
+    report = write_report(args.study, reps=args.reps, seed=args.seed)
+    print((Path(args.study) / "report.md").read_text())
+    return report

@@ -1,0 +1,203 @@
+"""Active Pre-training with Successor features (APS) as an SB3 algorithm."""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import numpy as np
+import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.policies import BasePolicy
+from stable_baselines3.common.type_aliases import GymEnv
+
+from sb3_cic.callbacks import SkillSelectionCallback
+from sb3_cic.ddpg import URLBDDPG
+from sb3_cic.policies import URLBCritic, URLBPolicy
+from sb3_cic.rewards.aps import APSReward
+from sb3_cic.skills import SphereSkillPrior
+
+
+class APSCritic(URLBCritic):
+    """Successor-feature twin critic: each head outputs ``psi`` (``output_dim``), ``Q = w . psi``.
+
+    The task vector ``w`` is the last ``output_dim`` entries of the observation (the skill).
+
+    :param observation_space: flat observation space ``[state, w]``
+    :param action_space: action space
+    :param hidden_dim: width of the hidden layers
+    :param output_dim: size of ``psi`` and ``w`` (10)
+    """
+
+    def __init__(
+        self, observation_space: spaces.Box, action_space: spaces.Box, hidden_dim: int = 1024, output_dim: int = 10
+    ) -> None:
+        super().__init__(observation_space, action_space, hidden_dim, output_dim)
+        self.sf_dim = output_dim
+
+    def successor_features(self, obs: th.Tensor, actions: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
+        """``(psi1, psi2)``, each ``(batch, output_dim)``."""
+        return super().forward(obs, actions)
+
+    def forward(self, obs: th.Tensor, actions: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
+        w = obs[:, -self.sf_dim :]
+        psi1, psi2 = self.successor_features(obs, actions)
+        return (psi1 * w).sum(dim=1, keepdim=True), (psi2 * w).sum(dim=1, keepdim=True)
+
+    def q1_forward(self, obs: th.Tensor, actions: th.Tensor) -> th.Tensor:
+        return (super().q1_forward(obs, actions) * obs[:, -self.sf_dim :]).sum(dim=1, keepdim=True)
+
+
+class APSPolicy(URLBPolicy):
+    """URLB policy with the successor-feature critic :class:`APSCritic` (``output_dim``: size of ``w``)."""
+
+    critic_class = APSCritic
+
+
+def regress_task(phi: th.Tensor, rewards: th.Tensor) -> np.ndarray:
+    """Least-squares task vector: solve ``phi w = r`` for ``w`` and normalise it to unit norm.
+
+    :param phi: ``(N, d)`` successor features of the transitions' next states
+    :param rewards: ``(N,)`` or ``(N, 1)`` one-step task rewards
+    :return: ``w / ||w||`` (float32, ``(d,)``); all zeros when the solution is zero
+    """
+    solution = th.linalg.lstsq(phi.double(), rewards.reshape(-1, 1).double()).solution.squeeze(1)
+    norm = th.linalg.vector_norm(solution)
+    w = solution / norm if norm > 0 else solution
+    return w.float().cpu().numpy()
+
+
+class APSRegressionCallback(SkillSelectionCallback):
+    """APS fine-tuning: regress the task reward onto the pre-trained successor features, fix ``w``.
+
+    Until step ``regression_step`` the task vector keeps being resampled as in pre-training; at that
+    step, once, ``w`` solves ``phi(s') w = r`` by least squares over the one-step transitions stored
+    in the replay buffer (all of them, a random subset of ``max_samples`` beyond that), with ``phi``
+    the loaded model's reward module, and is normalised and fixed for the rest of fine-tuning.
+
+    :param regression_step: step of the regression (URLB: 4,096)
+    :param max_samples: most transitions used (100,000)
+    :param verbose: verbosity
+    """
+
+    def __init__(self, regression_step: int = 4096, max_samples: int = 100_000, verbose: int = 0) -> None:
+        super().__init__(verbose)
+        self.regression_step = regression_step
+        self.max_samples = max_samples
+        #: transitions used by the last regression
+        self.n_samples = 0
+
+    def _start(self) -> None:
+        assert self.model.env is not None
+        self.model.env.env_method("set_fixed", False)
+
+    @th.no_grad()
+    def regress(self) -> np.ndarray:
+        """The normalised least-squares task vector from the replay buffer's raw one-step arrays."""
+        buffer = self.model.replay_buffer
+        stored = buffer.buffer_size if buffer.full else buffer.pos
+        next_obs = buffer.next_observations[:stored].reshape(-1, buffer.next_observations.shape[-1])
+        rewards = buffer.rewards[:stored].reshape(-1)
+        index = np.arange(len(rewards))
+        if len(index) > self.max_samples:
+            index = np.random.default_rng().choice(len(index), self.max_samples, replace=False)
+        self.n_samples = len(index)
+        module = self.model.reward_module
+        states = th.as_tensor(next_obs[index, : self.model.state_dim], device=self.model.device)
+        phi = module.phi(states)
+        return regress_task(phi, th.as_tensor(rewards[index], device=self.model.device))
+
+    def _on_step(self) -> bool:
+        if self.done or self.num_timesteps < self.regression_step:
+            return True
+        w = self.regress()
+        if not np.any(w):  # no reward signal yet: keep a random task vector
+            w = self.model.skill_prior.sample(np.random.default_rng())
+        else:
+            self.logger.record("finetune/regression_samples", self.n_samples)
+        self.choose(w)
+        return True
+
+
+class APS(URLBDDPG):
+    """Active Pre-training with Successor features (Liu & Abbeel, 2021, https://arxiv.org/abs/2108.13956).
+
+    Reference implementation: https://github.com/rll-research/url_benchmark (``agent/aps.py``).
+    A competence-based method: task vectors ``w`` on the unit sphere (10-d) resampled every 5 steps,
+    a successor-feature critic (:class:`APSPolicy`, ``Q = w . psi``) and the reward of
+    :class:`~sb3_cic.rewards.aps.APSReward` (particle entropy of ``phi(s')`` + ``w . phi(s')``).
+
+    Fine-tuning (:class:`APSRegressionCallback`): ``w`` keeps being resampled until step
+    ``regression_step`` (4,096), then it is regressed once from the stored task rewards and fixed.
+    Deliberate deviations from the reference code's slips: the regression solves ``phi(s') w = r``
+    (the code calls ``lstsq(r, phi)``, the swapped system, and uses ``phi(s)``); it uses one-step
+    rewards from the buffer's raw arrays (the code: 3-step sums from the replay iterator); and
+    ``phi`` is the pre-trained one (the code's ``init_from`` does not copy the APS network from the
+    snapshot, so its regression runs on a randomly initialised ``phi``).
+
+    :param policy: policy (``"MlpPolicy"``: :class:`APSPolicy`)
+    :param env: environment id, environment or VecEnv (wrapped with the skill wrapper if needed)
+    :param sf_dim: size of ``phi``, ``psi`` and ``w`` (10)
+    :param aps_hidden_dim: hidden width of ``phi`` (default: the policy's, 1024)
+    :param aps_lr: learning rate of ``phi`` (1e-4)
+    :param knn_k: neighbours of the particle estimator (12)
+    :param knn_clip: clip of the particle estimator (1e-4)
+    :param knn_avg: average the k distances (True)
+    :param knn_rms: divide by the running mean of the distances (True)
+    :param regression_step: fine-tuning step of the task regression (4,096)
+    :param regression_max_samples: most transitions used by the regression (100,000)
+    :param skill_resample_every: task-vector resampling period (5)
+    :param policy_kwargs: policy arguments (``hidden_dim``); ``output_dim`` is set to ``sf_dim``
+    :param kwargs: arguments of :class:`URLBDDPG` (``batch_size``...)
+    """
+
+    policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"MlpPolicy": APSPolicy}  # type: ignore[assignment]
+
+    def __init__(
+        self,
+        policy: str | type,
+        env: GymEnv | str,
+        sf_dim: int = 10,
+        aps_hidden_dim: int | None = None,
+        aps_lr: float = 1e-4,
+        knn_k: int = 12,
+        knn_clip: float = 1e-4,
+        knn_avg: bool = True,
+        knn_rms: bool = True,
+        regression_step: int = 4096,
+        regression_max_samples: int = 100_000,
+        skill_resample_every: int | None = 5,
+        policy_kwargs: dict[str, Any] | None = None,
+        **kwargs: Any,
+    ) -> None:
+        if isinstance(policy, type) and not issubclass(policy, APSPolicy):
+            raise ValueError(f"APS needs an APSPolicy (successor-feature critic), got {policy.__name__}")
+        self.aps_hidden_dim = aps_hidden_dim
+        self.aps_lr = aps_lr
+        self.knn_k = knn_k
+        self.knn_clip = knn_clip
+        self.knn_avg = knn_avg
+        self.knn_rms = knn_rms
+        self.regression_step = regression_step
+        self.regression_max_samples = regression_max_samples
+        prior = SphereSkillPrior(sf_dim)
+        policy_kwargs = {**(policy_kwargs or {}), "output_dim": sf_dim}
+        super().__init__(
+            policy, env, skill_prior=prior, skill_resample_every=skill_resample_every, policy_kwargs=policy_kwargs, **kwargs
+        )
+
+    def _make_reward_module(self) -> APSReward:
+        return APSReward(
+            self.state_dim,
+            int(self.action_space.shape[0]),
+            skill_dim=self.skill_dim,
+            hidden_dim=self.aps_hidden_dim or self.hidden_dim,
+            lr=self.aps_lr,
+            knn_k=self.knn_k,
+            knn_clip=self.knn_clip,
+            knn_avg=self.knn_avg,
+            knn_rms=self.knn_rms,
+        )
+
+    def make_finetune_callback(self) -> BaseCallback:
+        return APSRegressionCallback(self.regression_step, self.regression_max_samples, verbose=self.verbose)

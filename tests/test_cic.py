@@ -1,0 +1,149 @@
+"""CIC: contrastive loss, particle reward, fused update, skill selection, learning on the point mass."""
+
+import copy
+import math
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch as th
+from stable_baselines3.common.type_aliases import ReplayBufferSamples
+
+import sb3_cic  # noqa: F401
+from envs import SkillObservationWrapper
+from sb3_cic import CIC, SkillGridSweepCallback
+from sb3_cic.rewards.base import RewardModule
+from sb3_cic.rewards.cic import CICReward
+from sb3_cic.rewards.particle import ParticleEntropy, knn_distances
+from sb3_cic.skills import UniformSkillPrior
+
+
+def batch(state_dim=3, skill_dim=2, n=8, seed=0):
+    g = th.Generator().manual_seed(seed)
+    obs = th.cat([th.randn(n, state_dim, generator=g), th.rand(n, skill_dim, generator=g)], 1)
+    next_obs = th.cat([th.randn(n, state_dim, generator=g), obs[:, state_dim:]], 1)
+    return ReplayBufferSamples(obs, th.zeros(n, 1), next_obs, th.zeros(n, 1), th.zeros(n, 1), th.ones(n, 1))
+
+
+def test_contrastive_loss_hand_computed():
+    module = CICReward(3, 1, skill_dim=2, hidden_dim=8, temperature=0.5)
+    q = th.tensor([[1.0, 0.0], [0.0, 2.0], [3.0, 4.0]])
+    k = th.tensor([[2.0, 0.0], [1.0, 1.0], [0.0, -1.0]])
+    loss, accuracy = module.contrastive_loss(q, k)
+    qn = [[x / math.hypot(*row) for x in row] for row in q.tolist()]
+    kn = [[x / math.hypot(*row) for x in row] for row in k.tolist()]
+    expected, correct = 0.0, 0
+    for i in range(3):
+        logits = [sum(a * b for a, b in zip(qn[i], kn[j])) / 0.5 for j in range(3)]
+        expected += -(logits[i] - math.log(sum(math.exp(x) for x in logits))) / 3
+        correct += int(max(range(3), key=lambda j: logits[j]) == i)
+    assert loss.item() == pytest.approx(expected, rel=1e-6)
+    assert accuracy.item() == pytest.approx(correct / 3)
+
+
+def test_contrastive_loss_lower_for_aligned_pairs():
+    module = CICReward(3, 1, skill_dim=16, hidden_dim=8)
+    q = th.randn(64, 16, generator=th.Generator().manual_seed(0))
+    aligned, acc_aligned = module.contrastive_loss(q, q + 0.05 * th.randn(64, 16))
+    random, acc_random = module.contrastive_loss(q, th.randn(64, 16))
+    assert aligned < random and acc_aligned > acc_random
+    assert random.item() == pytest.approx(math.log(64), rel=0.15)
+
+
+def test_knn_distances_match_brute_force():
+    x = th.randn(50, 7, generator=th.Generator().manual_seed(1))
+    d = knn_distances(x, x, 5)
+    brute = th.cdist(x, x).sort(dim=1).values[:, :5]
+    th.testing.assert_close(d, brute, atol=1e-4, rtol=1e-4)
+
+
+def test_particle_reward_hand_computed():
+    points = [[0.0, 0.0], [1.0, 0.0], [0.0, 2.0], [3.0, 3.0], [1.0, 1.0]]
+    k, clip = 3, 0.0005
+    estimator = ParticleEntropy(k=k, avg=True, rms=True, clip=clip)
+    reward = estimator(th.tensor(points)).squeeze(1).tolist()
+    knn = []
+    for p in points:
+        dists = sorted(math.dist(p, q) for q in points)[:k]  # the point itself is its first neighbour
+        knn.append(dists)
+    all_d = [d for row in knn for d in row]
+    n0 = 1e-4  # URLB's RMS: mean 0 with pseudo-count 1e-4, updated with this batch
+    running_mean = (sum(all_d) / len(all_d)) * len(all_d) / (n0 + len(all_d))
+    expected = [math.log(1 + max(sum(row) / k / running_mean - clip, 0.0)) for row in knn]
+    assert reward == pytest.approx(expected, rel=1e-5)
+    plain = ParticleEntropy(k=k, avg=True, rms=False, clip=0.0)(th.tensor(points)).squeeze(1).tolist()
+    assert plain == pytest.approx([math.log(1 + sum(row) / k) for row in knn], rel=1e-5)
+
+
+def test_particle_reward_larger_for_spread_states():
+    g = th.Generator().manual_seed(0)
+    spread = th.randn(256, 4, generator=g) * 3.0
+    clustered = th.randn(256, 4, generator=g) * 0.1
+    estimator = ParticleEntropy(k=12, rms=False)
+    assert estimator(spread).mean() > estimator(clustered).mean()
+
+
+def test_fused_update_equals_reward_then_update():
+    """The speed change (one state_net pass for loss and reward) leaves rewards and updates unchanged."""
+    fused = CICReward(3, 1, skill_dim=2, hidden_dim=16)
+    plain = copy.deepcopy(fused)
+    b = batch(n=32)
+    r_fused, m_fused = fused.update_and_reward(b)
+    r_plain, m_plain = RewardModule.update_and_reward(plain, b)
+    th.testing.assert_close(r_fused, r_plain, atol=1e-6, rtol=1e-5)
+    th.testing.assert_close(m_fused["contrastive_loss"], m_plain["contrastive_loss"])
+    for a, p in zip(fused.parameters(), plain.parameters()):
+        th.testing.assert_close(a, p, atol=1e-6, rtol=1e-5)
+
+
+def test_cic_default_hyper_parameters():
+    model = CIC("MlpPolicy", "URLB/walker-v0", buffer_size=10, policy_kwargs={"hidden_dim": 32}, cic_hidden_dim=1024)
+    assert model.skill_prior == UniformSkillPrior(64) and model.skill_resample_every == 50
+    assert model.env.get_attr("resample_every") == [50]
+    rm = model.reward_module
+    shapes = lambda net: [(m.in_features, m.out_features) for m in net if isinstance(m, th.nn.Linear)]  # noqa: E731
+    assert shapes(rm.state_net) == [(24, 1024), (1024, 1024), (1024, 64)]
+    assert shapes(rm.pred_net) == [(128, 1024), (1024, 1024), (1024, 64)]
+    assert shapes(rm.skill_net) == [(64, 1024), (1024, 1024), (1024, 64)]
+    assert rm.temperature == 0.5 and rm.particle.k == 12 and rm.particle.clip == 0.0005 and rm.particle.use_rms
+    assert rm.optimizer.param_groups[0]["lr"] == 1e-4
+    assert model.reward_free and model.finetune_skill_choice == "sweep"
+
+
+class SkillReward(gym.Wrapper):
+    """Reward = 1 - |mean skill - 0.7|, read from the observation's skill part."""
+
+    def step(self, action):
+        obs, _, term, trunc, info = self.env.step(action)
+        return obs, 1.0 - abs(float(obs[-2:].mean()) - 0.7), term, trunc, info
+
+
+def test_grid_sweep_fixes_the_best_skill(tiny):
+    env = SkillReward(SkillObservationWrapper(gym.make("URLB/point_mass-reach-v0"), UniformSkillPrior(2)))
+    tiny["learning_starts"] = 1100
+    model = CIC("MlpPolicy", env, skill_dim=2, reward_free=False, **tiny)
+    sweep = SkillGridSweepCallback(sweep_steps=1100, window=100)
+    model.learn(1300, callback=sweep)
+    values = [float(z[0]) for z, _ in sweep.results]
+    np.testing.assert_allclose(values, np.linspace(0, 1, 11), atol=1e-6)
+    np.testing.assert_allclose(model.finetune_skill, [0.7, 0.7], atol=1e-6)
+    assert model.env.get_attr("fixed") == [True]
+    np.testing.assert_allclose(model.env.env_method("get_skill")[0], [0.7, 0.7], atol=1e-6)
+    returns = [ret for _, ret in sweep.results]
+    assert int(np.argmax(returns)) == 7 and returns[7] == pytest.approx(100.0)
+
+
+def test_fixed_choice_and_auto_sweep_on_finetune(tmp_path, tiny):
+    model = CIC("MlpPolicy", "URLB/point_mass-v0", skill_dim=3, finetune_skill_choice="fixed", **tiny)
+    model.learn(300)
+    model.save(tmp_path / "pre")
+    ft = CIC.load_pretrained(tmp_path / "pre", env="URLB/point_mass-reach-v0")
+    ft.learn(250)
+    np.testing.assert_allclose(ft.finetune_skill, 0.5)
+    assert ft.env.get_attr("fixed") == [True]
+    sweep = CIC.load_pretrained(tmp_path / "pre", env="URLB/point_mass-reach-v0", finetune_skill_choice="sweep",
+                                learning_starts=500)
+    sweep.learn(600)  # the paper's sweep is added by learn(): 5 candidates of 100 steps
+    assert sweep.finetune_skill is not None and np.all(sweep.finetune_skill == sweep.finetune_skill[0])
+    with pytest.raises(ValueError, match="finetune_skill_choice"):
+        CIC("MlpPolicy", "URLB/point_mass-v0", finetune_skill_choice="best", **tiny)
