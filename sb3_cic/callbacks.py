@@ -7,6 +7,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback, EvalCallback
+from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import DummyVecEnv
 
 from envs.skill_wrapper import SkillObservationWrapper
@@ -141,7 +142,7 @@ class URLBEvalCallback(EvalCallback):
     def __init__(
         self, eval_env: gym.Env | str, task: str | None = None, n_eval_episodes: int = 10, eval_freq: int = 10_000, **kwargs: Any
     ) -> None:
-        self._raw_eval_env = gym.make(eval_env) if isinstance(eval_env, str) else eval_env
+        self._raw_eval_env = Monitor(gym.make(eval_env)) if isinstance(eval_env, str) else eval_env
         super().__init__(self._raw_eval_env, n_eval_episodes=n_eval_episodes, eval_freq=eval_freq, **kwargs)
         self.task = task
         self.history: list[tuple[int, float, float]] = []

@@ -21,6 +21,7 @@ import argparse
 import csv
 import json
 import math
+import warnings
 from collections import defaultdict
 from pathlib import Path
 from typing import Any, Sequence
@@ -125,9 +126,11 @@ def aggregate_scores(matrices: dict[str, np.ndarray], reps: int = 2000, seed: in
             ]
         )
 
-    points, intervals = rly.get_interval_estimates(
-        matrices, aggregates, reps=reps, random_state=np.random.RandomState(seed)
-    )
+    with warnings.catch_warnings():  # arch's notice that ``random_state`` will be renamed
+        warnings.simplefilter("ignore", FutureWarning)
+        points, intervals = rly.get_interval_estimates(
+            matrices, aggregates, reps=reps, random_state=np.random.RandomState(seed)
+        )
     return {
         label: {
             name: {"point": float(points[label][i]), "low": float(intervals[label][0, i]), "high": float(intervals[label][1, i])}
@@ -156,8 +159,15 @@ def plot_aggregates(aggregates: dict[str, dict[str, dict[str, float]]], path: Pa
     labels = sorted(aggregates)
     points = {m: np.array([aggregates[m][k]["point"] for k in METRICS]) for m in labels}
     intervals = {m: np.array([[aggregates[m][k]["low"] for k in METRICS], [aggregates[m][k]["high"] for k in METRICS]]) for m in labels}
+    row_height = max(0.37, 1.6 / len(labels))  # rliable's default squeezes the x label in for few methods
     fig, _ = plot_utils.plot_interval_estimates(
-        points, intervals, metric_names=list(METRICS), algorithms=labels, xlabel="Normalized score", xlabel_y_coordinate=-0.3
+        points,
+        intervals,
+        metric_names=list(METRICS),
+        algorithms=labels,
+        xlabel="Normalized score",
+        row_height=row_height,
+        xlabel_y_coordinate=-0.5 / (row_height * len(labels)),
     )
     fig.savefig(path, dpi=120, bbox_inches="tight")
     plt.close(fig)
@@ -185,17 +195,19 @@ def plot_learning_curves(results: list[dict[str, Any]], path: Path) -> None:
             values = np.stack(same)
             mean = values.mean(axis=0)
             se = values.std(axis=0, ddof=1) / np.sqrt(len(same)) if len(same) > 1 else np.zeros_like(mean)
-            ax.plot(steps, mean, label=f"{label} ({len(same)})")
-            ax.fill_between(steps, mean - se, mean + se, alpha=0.25)
+            color = f"C{labels.index(label) % 10}"
+            ax.plot(steps, mean, color=color, label=label)
+            ax.fill_between(steps, mean - se, mean + se, color=color, alpha=0.25)
         ax.set_title(task)
         ax.set_xlabel("fine-tuning steps")
         ax.set_ylabel("return")
         ax.grid(alpha=0.3)
     for ax in list(axes.flat)[len(tasks) :]:
         ax.axis("off")
-    axes.flat[0].legend(fontsize=8)
+    handles = {text: handle for ax in axes.flat for handle, text in zip(*ax.get_legend_handles_labels())}
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    fig.legend(handles.values(), handles.keys(), loc="upper center", bbox_to_anchor=(0.5, 0.0), ncol=min(6, len(handles)))
+    fig.savefig(path, dpi=120, bbox_inches="tight")
     plt.close(fig)
 
 

@@ -325,7 +325,7 @@ def finetune(
         n_evaluations=len(evaluation.history),
         finetune_skill=None if skill is None else [float(v) for v in np.asarray(skill)],
         wall_time_s={"finetune": wall, "pretrain": None if pre is None else pre["wall_time_s"]["pretrain"]},
-        hyperparams=_describe(hyperparams),
+        hyperparams=_describe({**hyperparams, "policy_kwargs": model.policy_kwargs}),
     )
     _write_json(result_file, asdict(result))
     return asdict(result)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from typing import Any, ClassVar
 
 import numpy as np
@@ -112,6 +113,7 @@ class APSRegressionCallback(SkillSelectionCallback):
             return True
         w = self.regress()
         if not np.any(w):  # no reward signal yet: keep a random task vector
+            warnings.warn("APS regression: the stored task rewards are all zero, fine-tuning with a random w")
             w = self.model.skill_prior.sample(np.random.default_rng())
         else:
             self.logger.record("finetune/regression_samples", self.n_samples)

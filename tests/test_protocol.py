@@ -1,0 +1,159 @@
+"""End-to-end tests of the URLB protocol runner, the score report and the rl-zoo command line, at tiny scale.
+
+Tiny scale: hidden width 32, batch 32, 500 random steps, 1,500 pre-training steps, 1,000 fine-tuning
+steps evaluated every 500 steps with 2 episodes. The numbers mean nothing about the methods; the tests
+check the plumbing and recompute the report's statistics with numpy.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch as th
+import yaml
+
+from sb3_cic.cli import main
+from sb3_cic.constants import EXPERT_SCORES
+from sb3_cic.evaluation import write_report
+from sb3_cic.protocol import Settings, run_protocol
+
+SETTINGS = Settings(
+    hidden_dim=32,
+    batch_size=32,
+    learning_starts=500,
+    buffer_size=10_000,
+    pretrain_steps=1500,
+    finetune_steps=1000,
+    eval_freq=500,
+    eval_episodes=2,
+    num_threads=1,
+)
+SEEDS = (0, 1)
+CIC_TASKS = ("stand", "flip")
+
+
+def _run_study(study: Path) -> None:
+    run_protocol(study, "cic", "walker", tasks=CIC_TASKS, seeds=SEEDS, settings=SETTINGS)
+    run_protocol(study, "ddpg", "walker", tasks=("stand",), seeds=SEEDS, settings=SETTINGS)
+
+
+@pytest.fixture(scope="module")
+def study(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    threads = th.get_num_threads()
+    path = tmp_path_factory.mktemp("study")
+    _run_study(path)
+    write_report(path, reps=500)
+    th.set_num_threads(threads)
+    return path
+
+
+def _results(study: Path) -> list[dict]:
+    return [json.loads(p.read_text()) for p in sorted(study.glob("finetune/*/*/seed_*/result.json"))]
+
+
+def test_study_layout(study: Path):
+    pre = json.loads((study / "pretrain" / "cic_walker" / "result.json").read_text())
+    assert pre["steps"] == 1500 and (study / "pretrain" / "cic_walker" / "snapshot_1500.zip").stat().st_size > 0
+    assert pre["wall_time_s"]["pretrain"] > 0
+    assert not (study / "pretrain" / "ddpg_walker").exists()  # DDPG runs from scratch
+    results = _results(study)
+    runs = sorted((r["label"], r["task"], r["seed"]) for r in results)
+    expected = [("cic", f"walker_{t}", s) for t in CIC_TASKS for s in SEEDS] + [("ddpg", "walker_stand", s) for s in SEEDS]
+    assert runs == sorted(expected)
+    for r in results:
+        assert r["from_scratch"] == (r["method"] == "ddpg")
+        assert r["wall_time_s"]["finetune"] > 0
+        assert (r["wall_time_s"]["pretrain"] is None) == (r["method"] == "ddpg")
+        curve = np.genfromtxt(study / "finetune" / r["label"] / r["task"] / f"seed_{r['seed']}" / "eval.csv", delimiter=",", names=True)
+        assert curve["timestep"].tolist() == [0, 500, 1000]  # step 0 and every eval_freq
+        assert r["final_return"] == pytest.approx(curve["mean_return"][-1])
+        assert r["final_normalized_score"] == pytest.approx(r["final_return"] / EXPERT_SCORES[r["task"]])
+        if r["method"] == "cic":  # the grid sweep chose a constant skill
+            assert r["finetune_skill"] is not None and len(set(r["finetune_skill"])) == 1
+    assert list(study.glob("tensorboard/*/events.out.tfevents.*"))
+
+
+def test_report_numbers(study: Path):
+    report = json.loads((study / "report.json").read_text())
+    markdown = (study / "report.md").read_text()
+    results = _results(study)
+    rows = {(row["method"], row["task"]): row for row in report["per_task"]}
+    assert len(rows) == 3
+    for (label, task), row in rows.items():
+        returns = np.array([r["final_return"] for r in results if r["label"] == label and r["task"] == task])
+        scores = returns / EXPERT_SCORES[task]
+        assert row["n"] == len(returns) == 2
+        assert row["return_mean"] == pytest.approx(returns.mean())
+        assert row["return_se"] == pytest.approx(returns.std(ddof=1) / np.sqrt(2))
+        assert row["score_mean"] == pytest.approx(scores.mean())
+        assert row["score_se"] == pytest.approx(scores.std(ddof=1) / np.sqrt(2))
+        assert f"| {label} | {task} | 2 | {returns.mean():.1f} ± {returns.std(ddof=1) / np.sqrt(2):.1f} |" in markdown
+
+    for label in ("cic", "ddpg"):
+        tasks = sorted({r["task"] for r in results if r["label"] == label})
+        matrix = np.array(
+            [[next(r["final_normalized_score"] for r in results if r["label"] == label and r["task"] == t and r["seed"] == s) for t in tasks] for s in SEEDS]
+        )
+        flat = np.sort(matrix.ravel())
+        cut = int(0.25 * flat.size)
+        iqm = flat[cut : flat.size - cut].mean()
+        agg = report["aggregates"][label]
+        assert agg["IQM"]["point"] == pytest.approx(iqm)
+        assert agg["Median"]["point"] == pytest.approx(np.median(matrix.mean(axis=0)))  # rliable: median of task means
+        assert agg["Mean"]["point"] == pytest.approx(matrix.mean())
+        assert agg["Optimality Gap"]["point"] == pytest.approx(np.mean(1.0 - np.minimum(matrix, 1.0)))
+        for metric in agg.values():
+            assert metric["low"] <= metric["point"] + 1e-9 and metric["point"] <= metric["high"] + 1e-9
+        assert f"{iqm:.3f} [" in markdown
+
+    for name in ("aggregates.png", "learning_curves.png"):
+        assert (study / name).stat().st_size > 1000
+        assert (study / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_rerun_skips_finished_runs(study: Path):
+    files = sorted(study.glob("**/result.json")) + sorted(study.glob("pretrain/*/snapshot_*.zip"))
+    mtimes = {p: p.stat().st_mtime_ns for p in files}
+    start = time.perf_counter()
+    _run_study(study)
+    assert time.perf_counter() - start < 10
+    assert {p: p.stat().st_mtime_ns for p in files} == mtimes
+    assert sorted(study.glob("**/result.json")) == sorted(p for p in files if p.name == "result.json")
+
+
+def test_zoo_cli_train_finetune_enjoy(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    threads = th.get_num_threads()
+    monkeypatch.chdir(tmp_path)
+    small = ["--small", "--seed", "0", "--num-threads", "1", "--verbose", "0"]
+    main(["train", "--algo", "cic", "--env", "URLB/point_mass-v0", "-n", "600", *small, "--hyperparams", "learning_starts:300"])
+    pretrained = tmp_path / "logs" / "cic" / "URLB-point_mass-v0_1" / "URLB-point_mass-v0.zip"
+    assert pretrained.stat().st_size > 0
+    config = yaml.load((pretrained.parent / "URLB-point_mass-v0" / "config.yml").read_text(), Loader=yaml.UnsafeLoader)
+    assert config["batch_size"] == 32 and config["learning_starts"] == 300 and config["policy_kwargs"] == "dict(hidden_dim=32)"
+
+    main(
+        ["finetune", "--algo", "cic", "--env", "URLB/point_mass-reach-v0", "-i", str(pretrained), "-n", "500",
+         "--eval-freq", "500", "--eval-episodes", "1", *small, "--hyperparams", "learning_starts:200"]
+    )
+    run = tmp_path / "logs" / "cic" / "URLB-point_mass-reach-v0_1"
+    assert (run / "URLB-point_mass-reach-v0.zip").stat().st_size > 0
+    config = yaml.load((run / "URLB-point_mass-reach-v0" / "config.yml").read_text(), Loader=yaml.UnsafeLoader)
+    callbacks = {next(iter(c)): next(iter(c.values())) for c in config["callback"]}
+    assert callbacks["sb3_cic.callbacks.SkillGridSweepCallback"]["sweep_steps"] == 200  # = learning_starts
+    assert callbacks["sb3_cic.callbacks.URLBEvalCallback"]["n_eval_episodes"] == 1
+    assert len(config["env_wrapper"][0]["sb3_cic.zoo.skill_wrapper"]["skill"]) == 64  # the chosen skill, for enjoy
+    assert not (run / "evaluations.npz").exists()  # rl-zoo's own EvalCallback is off; URLBEvalCallback evaluates
+
+    from stable_baselines3.common.save_util import load_from_zip_file
+
+    data, _, _ = load_from_zip_file(run / "URLB-point_mass-reach-v0.zip")
+    assert data["reward_free"] is False and data["num_timesteps"] == 500 and data["finetune_skill"] is not None
+
+    main(["enjoy", "--algo", "cic", "--env", "URLB/point_mass-reach-v0", "--no-render", "-n", "20", "--deterministic"])
+    with pytest.raises(SystemExit, match="pre-train"):
+        main(["train", "--algo", "cic", "--env", "URLB/point_mass-reach-v0", *small])
+    th.set_num_threads(threads)
