@@ -51,6 +51,12 @@ def _zoo_args(argv: Sequence[str], finetune: bool) -> tuple[list[str], str, str,
     parser.add_argument("-f", "--log-folder", default="logs")
     known, rest = parser.parse_known_args(list(argv))
     if known.env is None or "-h" in rest or "--help" in rest:
+        print(
+            "sb3-cic options: --small (CPU-sized hyperparameters), --eval-freq N and --eval-episodes N (the yaml's "
+            "URLBEvalCallback), --conf-file (default zoo_configs/<algo>.yml), -f/--log-folder (default logs)"
+            + (", -i <pre-trained model.zip> (required)" if finetune else "")
+            + ". rl-zoo's train options follow.\n"
+        )
         return ["--help"], known.algo, "", known.log_folder
     algo = known.algo.lower()
     cls = zoo.get_algo(algo)

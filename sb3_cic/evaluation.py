@@ -102,7 +102,9 @@ def score_matrices(results: list[dict[str, Any]]) -> tuple[dict[str, np.ndarray]
     return matrices, tasks_of, seeds_of
 
 
-def aggregate_scores(matrices: dict[str, np.ndarray], reps: int = 2000, seed: int = 0) -> dict[str, dict[str, dict[str, float]]]:
+def aggregate_scores(
+    matrices: dict[str, np.ndarray], reps: int = 2000, seed: int = 0
+) -> dict[str, dict[str, dict[str, float]]]:
     """IQM, median, mean and optimality gap with stratified-bootstrap 95% intervals (rliable).
 
     :param matrices: per method, a ``(runs, tasks)`` matrix of normalised scores
@@ -133,7 +135,11 @@ def aggregate_scores(matrices: dict[str, np.ndarray], reps: int = 2000, seed: in
         )
     return {
         label: {
-            name: {"point": float(points[label][i]), "low": float(intervals[label][0, i]), "high": float(intervals[label][1, i])}
+            name: {
+                "point": float(points[label][i]),
+                "low": float(intervals[label][0, i]),
+                "high": float(intervals[label][1, i]),
+            }
             for i, name in enumerate(METRICS)
         }
         for label in matrices
@@ -158,7 +164,9 @@ def plot_aggregates(aggregates: dict[str, dict[str, dict[str, float]]], path: Pa
 
     labels = sorted(aggregates)
     points = {m: np.array([aggregates[m][k]["point"] for k in METRICS]) for m in labels}
-    intervals = {m: np.array([[aggregates[m][k]["low"] for k in METRICS], [aggregates[m][k]["high"] for k in METRICS]]) for m in labels}
+    intervals = {
+        m: np.array([[aggregates[m][k]["low"] for k in METRICS], [aggregates[m][k]["high"] for k in METRICS]]) for m in labels
+    }
     row_height = max(0.37, 1.6 / len(labels))  # rliable's default squeezes the x label in for few methods
     fig, _ = plot_utils.plot_interval_estimates(
         points,
@@ -256,7 +264,8 @@ def write_report(study: str | Path, reps: int = 2000, seed: int = 0) -> dict[str
     lines += ["", "## Learning curves", "", "![learning curves](learning_curves.png)", "", "## Wall time", ""]
     lines += ["| method | task | pre-training (s) | fine-tuning per run (s) |", "|---|---|---:|---:|"]
     for row in rows:
-        lines.append(f"| {row['method']} | {row['task']} | {_fmt(row['pretrain_wall_s'], 1)} | {_fmt(row['finetune_wall_s'], 1)} |")
+        pre, fine = _fmt(row["pretrain_wall_s"], 1), _fmt(row["finetune_wall_s"], 1)
+        lines.append(f"| {row['method']} | {row['task']} | {pre} | {fine} |")
     (study / "report.md").write_text("\n".join(lines) + "\n")
 
     report = {
@@ -264,7 +273,9 @@ def write_report(study: str | Path, reps: int = 2000, seed: int = 0) -> dict[str
         "reps": reps,
         "per_task": rows,
         "aggregates": aggregates,
-        "matrices": {label: {"tasks": tasks_of[label], "seeds": seeds_of[label], "scores": m.tolist()} for label, m in matrices.items()},
+        "matrices": {
+            label: {"tasks": tasks_of[label], "seeds": seeds_of[label], "scores": m.tolist()} for label, m in matrices.items()
+        },
     }
     (study / "report.json").write_text(json.dumps(report, indent=2, default=float))
     return report

@@ -38,7 +38,6 @@ from envs.tasks import DOMAIN_TASKS
 from sb3_cic import zoo
 from sb3_cic.callbacks import SkillGridSweepCallback, URLBEvalCallback
 from sb3_cic.constants import EXPERT_SCORES
-from sb3_cic.ddpg import URLBDDPG
 
 #: URLB's pre-training snapshots
 DEFAULT_SNAPSHOTS: tuple[int, ...] = (100_000, 500_000, 1_000_000, 2_000_000)
@@ -165,7 +164,12 @@ class SnapshotCallback(BaseCallback):
 
 
 def pretrain(
-    study: str | Path, method: str, domain: str, settings: Settings | None = None, seed: int = 0, config: str | Path | None = None
+    study: str | Path,
+    method: str,
+    domain: str,
+    settings: Settings | None = None,
+    seed: int = 0,
+    config: str | Path | None = None,
 ) -> dict[str, Any]:
     """Pre-train ``method`` on ``URLB/<domain>-v0`` once (skipped if its ``result.json`` exists).
 
@@ -269,17 +273,16 @@ def finetune(
     hyperparams, callbacks, n_timesteps, _ = zoo.zoo_hyperparams(method, env_id, config, overrides)
     hyperparams.pop("env_wrapper", None)
     steps = int(settings.finetune_steps or n_timesteps)
-    tensorboard_log = str(Path(study) / "tensorboard")
+    common = {"seed": seed, "device": settings.device, "verbose": settings.verbose}
+    common["tensorboard_log"] = str(Path(study) / "tensorboard")
     set_random_seed(seed)
     if from_scratch:
-        model = cls(env=env_id, seed=seed, device=settings.device, verbose=settings.verbose, tensorboard_log=tensorboard_log, **hyperparams)
+        model = cls(env=env_id, **common, **hyperparams)
     else:
         assert pre is not None
         kwargs = {k: v for k, v in hyperparams.items() if k not in ("policy", "policy_kwargs")}
         snapshot_path = Path(study) / "pretrain" / f"{method}_{domain}" / f"snapshot_{snapshot}.zip"
-        model = cls.load_pretrained(
-            snapshot_path, env_id, seed=seed, device=settings.device, verbose=settings.verbose, tensorboard_log=tensorboard_log, **kwargs
-        )
+        model = cls.load_pretrained(snapshot_path, env_id, **common, **kwargs)
     for callback in callbacks:  # the sweep lasts learning_starts steps (also when the yaml sets neither)
         if isinstance(callback, SkillGridSweepCallback):
             callback.sweep_steps = model.learning_starts
@@ -288,7 +291,11 @@ def finetune(
     eval_env.reset(seed=10_000 + seed)
     expert = EXPERT_SCORES.get(name)
     evaluation = URLBEvalCallback(
-        eval_env, task=name if expert else None, n_eval_episodes=settings.eval_episodes, eval_freq=settings.eval_freq, verbose=0
+        eval_env,
+        task=name if expert else None,
+        n_eval_episodes=settings.eval_episodes,
+        eval_freq=settings.eval_freq,
+        verbose=0,
     )
     start = time.perf_counter()
     model.learn(

@@ -68,7 +68,8 @@ def test_study_layout(study: Path):
         assert r["from_scratch"] == (r["method"] == "ddpg")
         assert r["wall_time_s"]["finetune"] > 0
         assert (r["wall_time_s"]["pretrain"] is None) == (r["method"] == "ddpg")
-        curve = np.genfromtxt(study / "finetune" / r["label"] / r["task"] / f"seed_{r['seed']}" / "eval.csv", delimiter=",", names=True)
+        run_dir = study / "finetune" / r["label"] / r["task"] / f"seed_{r['seed']}"
+        curve = np.genfromtxt(run_dir / "eval.csv", delimiter=",", names=True)
         assert curve["timestep"].tolist() == [0, 500, 1000]  # step 0 and every eval_freq
         assert r["final_return"] == pytest.approx(curve["mean_return"][-1])
         assert r["final_normalized_score"] == pytest.approx(r["final_return"] / EXPERT_SCORES[r["task"]])
@@ -95,9 +96,8 @@ def test_report_numbers(study: Path):
 
     for label in ("cic", "ddpg"):
         tasks = sorted({r["task"] for r in results if r["label"] == label})
-        matrix = np.array(
-            [[next(r["final_normalized_score"] for r in results if r["label"] == label and r["task"] == t and r["seed"] == s) for t in tasks] for s in SEEDS]
-        )
+        score = {(r["task"], r["seed"]): r["final_normalized_score"] for r in results if r["label"] == label}
+        matrix = np.array([[score[(t, s)] for t in tasks] for s in SEEDS])  # runs x tasks
         flat = np.sort(matrix.ravel())
         cut = int(0.25 * flat.size)
         iqm = flat[cut : flat.size - cut].mean()
@@ -129,7 +129,8 @@ def test_zoo_cli_train_finetune_enjoy(tmp_path: Path, monkeypatch: pytest.Monkey
     threads = th.get_num_threads()
     monkeypatch.chdir(tmp_path)
     small = ["--small", "--seed", "0", "--num-threads", "1", "--verbose", "0"]
-    main(["train", "--algo", "cic", "--env", "URLB/point_mass-v0", "-n", "600", *small, "--hyperparams", "learning_starts:300"])
+    main(["train", "--algo", "cic", "--env", "URLB/point_mass-v0", "-n", "600", *small,
+          "--hyperparams", "learning_starts:300"])
     pretrained = tmp_path / "logs" / "cic" / "URLB-point_mass-v0_1" / "URLB-point_mass-v0.zip"
     assert pretrained.stat().st_size > 0
     config = yaml.load((pretrained.parent / "URLB-point_mass-v0" / "config.yml").read_text(), Loader=yaml.UnsafeLoader)
