@@ -13,7 +13,7 @@ in turn, ``--block`` steps at a time, until each has run ``--steps`` steps, and 
 that of its fastest block: the one least disturbed by other processes, so that the ratios hold on a
 shared machine. ``ovh`` (overhead) is raw steps/s divided by the wrapper's (1.00 = no overhead).
 
-Usage: ``MUJOCO_GL=disable python benchmarks/env_speed.py --steps 4000 --block 200``
+Usage: ``MUJOCO_GL=disable python benchmarks/env_speed.py --steps 4000 --block 100``
 """
 
 from __future__ import annotations
@@ -134,7 +134,7 @@ def benchmark(domain: str, task: str, steps: int, block: int) -> dict[str, float
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--steps", type=int, default=4000, help="steps per kind of environment (jaco: a fifth)")
-    parser.add_argument("--block", type=int, default=200, help="steps per timed block (jaco: a fifth)")
+    parser.add_argument("--block", type=int, default=100, help="steps per timed block (jaco: a fifth)")
     args = parser.parse_args()
 
     header = f"{'environment':<26}{'steps':>7}{'raw/s':>10}{'shimmy/s':>10}{'ours/s':>10}{'shimmy ovh':>12}{'ours ovh':>10}"

@@ -66,6 +66,9 @@ class DMCEnv(gym.Env):
         self._act_half_range = 0.5 * (self._act_high - self._act_low)
         # multiplying by 1 is exact: skip it for [-1, 1] physics bounds (walker, point mass)
         self._act_unit_range = bool(np.all(self._act_half_range == 1.0))
+        # array operands: cheaper in ufuncs than Python scalars
+        self._act_ones = np.ones(act_spec.shape, dtype=np.float64)
+        self._act_minus_ones = -self._act_ones
         self._obs_buffer = np.empty(dim, dtype=np.float32)
 
     # dm_control objects --------------------------------------------------------------------
@@ -106,9 +109,9 @@ class DMCEnv(gym.Env):
         # clip to [-1, 1] in float64 and rescale to the physics bounds, in place on one new array:
         # bit for bit ``low + (clip(a, -1, 1) + 1) * 0.5 * (high - low)``, but np.clip and the
         # temporaries cost about twice as much as these in-place ufuncs
-        scaled = np.maximum(action, -1.0, dtype=np.float64)
-        np.minimum(scaled, 1.0, out=scaled)
-        scaled += 1.0
+        scaled = np.maximum(action, self._act_minus_ones, dtype=np.float64)
+        np.minimum(scaled, self._act_ones, out=scaled)
+        scaled += self._act_ones
         if not self._act_unit_range:
             scaled *= self._act_half_range
         scaled += self._act_low
