@@ -54,8 +54,14 @@ class DMCEnv(gym.Env):
         self.render_size = render_size
         self.camera_id = camera_id
 
-        self._obs_keys = list(self._env.observation_spec().keys())
-        dim = sum(int(np.prod(spec.shape)) for spec in self._env.observation_spec().values())
+        # (key, slice of the flat observation, needs ravel) in dm_control's key order
+        self._obs_slices: list[tuple[str, slice, bool]] = []
+        dim = 0
+        for key, spec in self._env.observation_spec().items():
+            size = int(np.prod(spec.shape))
+            self._obs_slices.append((key, slice(dim, dim + size), len(spec.shape) > 1))
+            dim += size
+        self._obs_dim = dim
         self.observation_space = spaces.Box(-np.inf, np.inf, shape=(dim,), dtype=np.float32)
         act_spec = self._env.action_spec()
         self._act_low = act_spec.minimum.astype(np.float64)
@@ -69,7 +75,6 @@ class DMCEnv(gym.Env):
         # array operands: cheaper in ufuncs than Python scalars
         self._act_ones = np.ones(act_spec.shape, dtype=np.float64)
         self._act_minus_ones = -self._act_ones
-        self._obs_buffer = np.empty(dim, dtype=np.float32)
 
     # dm_control objects --------------------------------------------------------------------
     @property
@@ -90,12 +95,10 @@ class DMCEnv(gym.Env):
 
     # Gymnasium API -------------------------------------------------------------------------
     def _flatten(self, observation: dict[str, np.ndarray]) -> np.ndarray:
-        out = np.empty_like(self._obs_buffer)
-        i = 0
-        for key in self._obs_keys:
-            value = np.asarray(observation[key]).ravel()
-            out[i : i + value.size] = value
-            i += value.size
+        # a new array per step (callers keep observations); scalars and vectors are assigned as they are
+        out = np.empty(self._obs_dim, dtype=np.float32)
+        for key, where, ravel in self._obs_slices:
+            out[where] = observation[key].ravel() if ravel else observation[key]
         return out
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
