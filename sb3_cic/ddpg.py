@@ -125,6 +125,8 @@ class URLBDDPG(DDPG):
     policy: URLBPolicy
     #: what fine-tuning keeps of the pre-trained critic: "trunk" (URLB), "all" (ProtoRL) or "none"
     finetune_critic: ClassVar[str] = "trunk"
+    #: freeze the critic's weights during the actor step (no weight gradients; same actor update)
+    freeze_critic_in_actor_step: bool = True
 
     def __init__(
         self,
@@ -297,13 +299,14 @@ class URLBDDPG(DDPG):
         critic_loss.backward()
         self.critic.optimizer.step()
 
-        for param in self._critic_params:  # no critic weight gradients in the actor step
+        frozen = self._critic_params if self.freeze_critic_in_actor_step else []
+        for param in frozen:  # no critic weight gradients in the actor step
             param.requires_grad_(False)
         actor_loss = self.actor_loss(data.observations)
         self.actor.optimizer.zero_grad(set_to_none=True)
         actor_loss.backward()
         self.actor.optimizer.step()
-        for param in self._critic_params:
+        for param in frozen:
             param.requires_grad_(True)
 
         with th.no_grad():

@@ -8,6 +8,8 @@ import torch as th
 from stable_baselines3.common.type_aliases import ReplayBufferSamples
 from torch import nn
 
+from sb3_cic.policies import ADAM_KWARGS
+
 
 class RewardModule(nn.Module):
     """Networks that define an intrinsic reward, with their own optimiser.
@@ -33,9 +35,9 @@ class RewardModule(nn.Module):
         self.lr = lr
 
     def make_optimizer(self, params: Any = None, lr: float | None = None) -> None:
-        """Create ``self.optimizer`` (Adam) over ``params`` (default: all trainable parameters)."""
+        """Create ``self.optimizer`` (Adam, fused) over ``params`` (default: all trainable parameters)."""
         params = [p for p in self.parameters() if p.requires_grad] if params is None else params
-        self.optimizer = th.optim.Adam(params, lr=self.lr if lr is None else lr)
+        self.optimizer = th.optim.Adam(params, lr=self.lr if lr is None else lr, **ADAM_KWARGS)
 
     def split(self, obs: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
         """Split observations into ``(state, skill)``."""

@@ -1,0 +1,378 @@
+"""Update throughput of every method against this machine's compute bound.
+
+For each method and size (``full``: hidden 1024, batch 1024, URLB; ``small``: hidden 256, batch 256)
+one fresh process (so that its peak memory is its own) builds the model on ``URLB/walker-v0``
+(DDPG: ``URLB/walker-stand-v0``), fills the replay buffer with random steps, and measures
+
+* ``update ms``: median time of one update (``model.train(1, batch)``: sampling, the reward
+  module's update and relabelling, critic and actor steps, target update), after warm-up;
+* ``GFLOP``: the update's floating-point operations, counted from its matrix products by
+  ``torch.utils.flop_counter.FlopCounterMode`` (forward and backward);
+* ``bound ms``: GFLOP divided by this machine's matmul rate (a ``n x n x n`` matmul, ``n`` = hidden
+  size, best of repeats, same threads): the time the update would take at the rate of its
+  matrix products alone; ``x bound`` = update / bound;
+* ``learn steps/s``: env steps per second of ``learn()`` while training (one update every 2 steps),
+  and ``loop %``: the time of ``learn()`` above ``updates x update + steps x env step`` (env steps
+  through the VecEnv, skill wrapper and Monitor), i.e. what SB3's loop adds, action selection included;
+* ``peak MiB``: the process's peak resident memory (CPU; the buffer holds only the steps taken)
+  or ``torch.cuda.max_memory_allocated`` (CUDA).
+
+A plain-PyTorch CIC (the same networks, losses and reward on batches drawn from tensors, no SB3)
+runs beside them as ``cic (plain torch)``. ``--ablations`` times the CIC update with each speed
+change of the package undone (the "before" of each change), and the kNN reward of a batch.
+
+Usage::
+
+    MUJOCO_GL=disable python benchmarks/throughput.py                      # every method, both sizes
+    MUJOCO_GL=disable python benchmarks/throughput.py --methods cic ddpg --sizes full --ablations
+    MUJOCO_GL=disable python benchmarks/throughput.py --device cuda         # where a GPU exists
+"""
+
+from __future__ import annotations
+
+import argparse
+import concurrent.futures as futures
+import multiprocessing
+import os
+import resource
+import statistics
+import sys
+import time
+from typing import Any, Callable
+
+os.environ.setdefault("MUJOCO_GL", "disable")
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+import numpy as np  # noqa: E402
+import torch as th  # noqa: E402
+import torch.nn.functional as F  # noqa: E402
+from torch import nn  # noqa: E402
+from torch.utils.flop_counter import FlopCounterMode  # noqa: E402
+
+SIZES = {"full": (1024, 1024), "small": (256, 256)}
+METHODS = ["ddpg", "cic", "icm", "disagreement", "rnd", "apt", "proto", "diayn", "smm", "aps"]
+
+
+def _sync(device: th.device) -> None:
+    if device.type == "cuda":
+        th.cuda.synchronize(device)
+
+
+def median_time(fn: Callable[[], Any], device: th.device, repeats: int, warmup: int = 3) -> float:
+    """Median wall time of ``fn()`` in seconds, after ``warmup`` calls."""
+    for _ in range(warmup):
+        fn()
+    _sync(device)
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fn()
+        _sync(device)
+        times.append(time.perf_counter() - start)
+    return statistics.median(times)
+
+
+def matmul_rate(n: int, device: th.device, repeats: int = 10) -> float:
+    """FLOP/s of an ``n x n`` by ``n x n`` float32 matmul on ``device`` (best of ``repeats``)."""
+    a, b = th.randn(n, n, device=device), th.randn(n, n, device=device)
+    out = th.empty(n, n, device=device)
+    best = float("inf")
+    for _ in range(3):
+        th.mm(a, b, out=out)
+    _sync(device)
+    for _ in range(repeats):
+        start = time.perf_counter()
+        th.mm(a, b, out=out)
+        _sync(device)
+        best = min(best, time.perf_counter() - start)
+    return 2 * n**3 / best
+
+
+def count_flops(fn: Callable[[], Any]) -> int:
+    """Floating-point operations of the matrix products of one call of ``fn``."""
+    with FlopCounterMode(display=False) as counter:
+        fn()
+    return int(counter.get_total_flops())
+
+
+def peak_memory_mib(device: th.device) -> float:
+    if device.type == "cuda":
+        return th.cuda.max_memory_allocated(device) / 2**20
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # KiB on Linux
+
+
+# ----------------------------------------------------------------------------------------------
+# the package's methods
+def build(method: str, hidden: int, batch: int, device: str, fill: int, buffer_size: int, seed: int = 0) -> Any:
+    """A model of ``method`` whose buffer holds ``fill`` random steps (no update taken yet)."""
+    from sb3_cic.zoo import get_algo
+
+    cls = get_algo(method)
+    env_id = "URLB/walker-stand-v0" if method == "ddpg" else "URLB/walker-v0"
+    model = cls(
+        "MlpPolicy",
+        env_id,
+        policy_kwargs={"hidden_dim": hidden},
+        batch_size=batch,
+        buffer_size=buffer_size,
+        learning_starts=fill,
+        device=device,
+        seed=seed,
+    )
+    model.learn(fill)  # random actions only: SB3 trains once num_timesteps > learning_starts
+    return model
+
+
+def env_step_time(model: Any, steps: int) -> float:
+    """Seconds per step of the model's VecEnv (wrappers included) with random actions."""
+    env = model.env
+    env.reset()
+    actions = np.stack([env.action_space.sample() for _ in range(steps)])[:, None]
+    start = time.perf_counter()
+    for action in actions:
+        env.step(action)
+    return (time.perf_counter() - start) / steps
+
+
+def measure_method(method: str, size: str, device_name: str, repeats: int, learn_steps: int, threads: int) -> dict:
+    """One row of the table (run in a fresh process)."""
+    th.set_num_threads(threads)
+    device = th.device(device_name)
+    hidden, batch = SIZES[size]
+    fill = max(2 * batch, 2000)
+    model = build(method, hidden, batch, device_name, fill, buffer_size=fill + learn_steps + 1000)
+    update = median_time(lambda: model.train(1, batch), device, repeats)
+    flops = count_flops(lambda: model.train(1, batch))
+    rate = matmul_rate(hidden, device)
+    t_env = env_step_time(model, 500)
+    model.env.reset()
+    start = time.perf_counter()
+    model.learn(learn_steps, reset_num_timesteps=False)
+    _sync(device)
+    learn_time = time.perf_counter() - start
+    expected = (learn_steps // model.train_freq.frequency) * update + learn_steps * t_env
+    return {
+        "name": method,
+        "size": size,
+        "update_ms": update * 1e3,
+        "gflop": flops / 1e9,
+        "bound_ms": flops / rate * 1e3,
+        "rate": rate,
+        "steps_per_s": learn_steps / learn_time,
+        "loop_pct": 100 * (learn_time / expected - 1),
+        "peak_mib": peak_memory_mib(device),
+    }
+
+
+# ----------------------------------------------------------------------------------------------
+# the same CIC update in plain PyTorch
+class PlainCIC:
+    """CIC (URLB networks, contrastive loss, particle reward, DDPG update) on tensors, without SB3.
+
+    Written as a user would write it in plain PyTorch: one Adam per network, batches indexed from
+    tensors that live on the device, the same mathematics as :class:`sb3_cic.CIC`.
+    """
+
+    def __init__(self, state_dim: int, action_dim: int, skill_dim: int, hidden: int, device: th.device) -> None:
+        obs_dim = state_dim + skill_dim
+        self.state_dim, self.skill_dim, self.device = state_dim, skill_dim, device
+
+        def mlp(i: int, o: int) -> nn.Sequential:
+            return nn.Sequential(nn.Linear(i, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU(), nn.Linear(hidden, o))
+
+        def head() -> nn.Sequential:
+            return nn.Sequential(nn.Linear(hidden, hidden), nn.ReLU(), nn.Linear(hidden, 1))
+
+        self.actor = nn.Sequential(
+            nn.Linear(obs_dim, hidden), nn.LayerNorm(hidden), nn.Tanh(),
+            nn.Linear(hidden, hidden), nn.ReLU(), nn.Linear(hidden, action_dim), nn.Tanh(),
+        ).to(device)
+        self.critic = nn.ModuleDict({
+            "trunk": nn.Sequential(nn.Linear(obs_dim + action_dim, hidden), nn.LayerNorm(hidden), nn.Tanh()),
+            "q1": head(), "q2": head(),
+        }).to(device)
+        self.critic_target = nn.ModuleDict({
+            "trunk": nn.Sequential(nn.Linear(obs_dim + action_dim, hidden), nn.LayerNorm(hidden), nn.Tanh()),
+            "q1": head(), "q2": head(),
+        }).to(device)
+        self.critic_target.load_state_dict(self.critic.state_dict())
+        self.cic = nn.ModuleDict({
+            "state_net": mlp(state_dim, skill_dim), "pred_net": mlp(2 * skill_dim, skill_dim),
+            "skill_net": mlp(skill_dim, skill_dim),
+        }).to(device)
+        self.actor_opt = th.optim.Adam(self.actor.parameters(), lr=1e-4)
+        self.critic_opt = th.optim.Adam(self.critic.parameters(), lr=1e-4)
+        self.cic_opt = th.optim.Adam(self.cic.parameters(), lr=1e-4)
+        self.rms_mean, self.rms_count = th.zeros((), device=device), 1e-4
+
+    def q(self, critic: nn.ModuleDict, obs: th.Tensor, action: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
+        h = critic["trunk"](th.cat([obs, action], 1))
+        return critic["q1"](h), critic["q2"](h)
+
+    def noisy(self, mu: th.Tensor) -> th.Tensor:
+        return (mu + (0.2 * th.randn_like(mu)).clamp(-0.3, 0.3)).clamp(-1, 1)
+
+    def update(self, obs: th.Tensor, action: th.Tensor, next_obs: th.Tensor, discount: th.Tensor) -> None:
+        state, skill, next_state = obs[:, : self.state_dim], obs[:, self.state_dim :], next_obs[:, : self.state_dim]
+        # CIC discriminator and reward
+        embedding = self.cic["state_net"](th.cat([state, next_state]))
+        key = self.cic["pred_net"](th.cat(embedding.chunk(2), 1))
+        logits = F.normalize(self.cic["skill_net"](skill), dim=1) @ F.normalize(key, dim=1).T / 0.5
+        loss = F.cross_entropy(logits, th.arange(len(obs), device=self.device))
+        with th.no_grad():
+            source = embedding[len(obs) :]
+            dist = th.cdist(source, source).topk(12, dim=1, largest=False).values
+            n = dist.numel()
+            self.rms_mean = self.rms_mean + (dist.mean() - self.rms_mean) * n / (self.rms_count + n)
+            self.rms_count += n
+            reward = th.log(1 + (dist.mean(1, keepdim=True) / self.rms_mean - 0.0005).clamp_min(0))
+        self.cic_opt.zero_grad()
+        loss.backward()
+        self.cic_opt.step()
+        # critic
+        with th.no_grad():
+            target = reward + discount * th.min(*self.q(self.critic_target, next_obs, self.noisy(self.actor(next_obs))))
+        q1, q2 = self.q(self.critic, obs, action)
+        critic_loss = F.mse_loss(q1, target) + F.mse_loss(q2, target)
+        self.critic_opt.zero_grad()
+        critic_loss.backward()
+        self.critic_opt.step()
+        # actor
+        actor_loss = -th.min(*self.q(self.critic, obs, self.noisy(self.actor(obs)))).mean()
+        self.actor_opt.zero_grad()
+        actor_loss.backward()
+        self.actor_opt.step()
+        with th.no_grad():
+            for p, tp in zip(self.critic.parameters(), self.critic_target.parameters()):
+                tp.lerp_(p, 0.01)
+
+
+def measure_plain_cic(size: str, device_name: str, repeats: int, threads: int) -> dict:
+    th.set_num_threads(threads)
+    device = th.device(device_name)
+    hidden, batch = SIZES[size]
+    state_dim, action_dim, skill_dim, capacity = 24, 6, 64, 10_000
+    agent = PlainCIC(state_dim, action_dim, skill_dim, hidden, device)
+    obs = th.rand(capacity, state_dim + skill_dim, device=device)
+    actions = th.rand(capacity, action_dim, device=device) * 2 - 1
+    next_obs = th.rand(capacity, state_dim + skill_dim, device=device)
+    discounts = th.full((capacity, 1), 0.99**3, device=device)
+
+    def step() -> None:
+        idx = th.randint(capacity, (batch,), device=device)
+        agent.update(obs[idx], actions[idx], next_obs[idx], discounts[idx])
+
+    update = median_time(step, device, repeats)
+    flops = count_flops(step)
+    rate = matmul_rate(hidden, device)
+    return {
+        "name": "cic (plain torch)",
+        "size": size,
+        "update_ms": update * 1e3,
+        "gflop": flops / 1e9,
+        "bound_ms": flops / rate * 1e3,
+        "rate": rate,
+        "steps_per_s": float("nan"),
+        "loop_pct": float("nan"),
+        "peak_mib": peak_memory_mib(device),
+    }
+
+
+# ----------------------------------------------------------------------------------------------
+# ablations: each speed change of the package undone
+def measure_ablations(size: str, device_name: str, repeats: int, threads: int) -> list[tuple[str, float]]:
+    """CIC update time (ms) as shipped and with each speed change undone; kNN reward time."""
+    from stable_baselines3.common.utils import polyak_update
+
+    from sb3_cic.rewards.base import RewardModule
+    from sb3_cic.rewards.particle import ParticleEntropy
+
+    th.set_num_threads(threads)
+    device = th.device(device_name)
+    hidden, batch = SIZES[size]
+    model = build("cic", hidden, batch, device_name, fill=max(2 * batch, 2000), buffer_size=10_000)
+    module = model.reward_module
+    rows = [("CIC update as shipped", median_time(lambda: model.train(1, batch), device, repeats))]
+
+    # 1. reward and discriminator update with separate state_net passes
+    fused = module.update_and_reward
+    module.update_and_reward = lambda data: RewardModule.update_and_reward(module, data)
+    rows.append(("  reward not fused with the discriminator update", median_time(lambda: model.train(1, batch), device, repeats)))
+    module.update_and_reward = fused
+
+    # 2. critic weight gradients computed during the actor step
+    model.freeze_critic_in_actor_step = False
+    rows.append(("  critic weight gradients in the actor step", median_time(lambda: model.train(1, batch), device, repeats)))
+    model.freeze_critic_in_actor_step = True
+
+    # 3. SB3's polyak_update (a Python loop over parameters) instead of one foreach lerp
+    foreach_lerp = th._foreach_lerp_
+
+    def polyak(targets: list, sources: list, tau: float) -> None:
+        polyak_update(sources, targets, tau)
+
+    th._foreach_lerp_ = polyak  # type: ignore[assignment]
+    try:
+        rows.append(("  polyak_update loop for the target critic", median_time(lambda: model.train(1, batch), device, repeats)))
+    finally:
+        th._foreach_lerp_ = foreach_lerp
+
+    # 4. the kNN reward of one batch (state_net embedding size 64)
+    particle = ParticleEntropy().to(device)
+    embedding = th.randn(batch, 64, device=device)
+    rows.append((f"kNN particle reward of a {batch} batch", median_time(lambda: particle(embedding), device, 5 * repeats)))
+    rows.append((
+        f"  same with B x B x D broadcast differences",
+        median_time(
+            lambda: (embedding[:, None] - embedding[None]).norm(dim=-1).topk(12, dim=1, largest=False), device, repeats
+        ),
+    ))
+    return [(name, seconds * 1e3) for name, seconds in rows]
+
+
+# ----------------------------------------------------------------------------------------------
+def _in_fresh_process(fn: Callable, *args: Any) -> Any:
+    context = multiprocessing.get_context("spawn")
+    with futures.ProcessPoolExecutor(max_workers=1, mp_context=context) as pool:
+        return pool.submit(fn, *args).result()
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--methods", nargs="+", default=METHODS, choices=METHODS)
+    parser.add_argument("--sizes", nargs="+", default=["full", "small"], choices=list(SIZES))
+    parser.add_argument("--device", default="cpu")
+    parser.add_argument("--repeats", type=int, default=10, help="timed updates per row (median)")
+    parser.add_argument("--learn-steps", type=int, default=200, help="env steps of the timed learn()")
+    parser.add_argument("--threads", type=int, default=th.get_num_threads())
+    parser.add_argument("--no-plain", action="store_true", help="skip the plain-PyTorch CIC")
+    parser.add_argument("--ablations", action="store_true", help="time the CIC update with each speed change undone")
+    args = parser.parse_args()
+
+    print(f"torch {th.__version__}, device {args.device}, {args.threads} threads")
+    header = (
+        f"{'method':<20}{'size':>6}{'update ms':>11}{'GFLOP':>8}{'GFLOP/s':>9}{'bound ms':>10}{'x bound':>9}"
+        f"{'learn steps/s':>15}{'loop %':>8}{'peak MiB':>10}"
+    )
+    print(header + "\n" + "-" * len(header))
+    for size in args.sizes:
+        jobs = [(measure_method, m, size, args.device, args.repeats, args.learn_steps, args.threads) for m in args.methods]
+        if not args.no_plain:
+            jobs.append((measure_plain_cic, size, args.device, args.repeats, args.threads))
+        for fn, *fn_args in jobs:
+            r = _in_fresh_process(fn, *fn_args)
+            print(
+                f"{r['name']:<20}{r['size']:>6}{r['update_ms']:>11.2f}{r['gflop']:>8.2f}{r['rate'] / 1e9:>9.0f}"
+                f"{r['bound_ms']:>10.2f}{r['update_ms'] / r['bound_ms']:>8.2f}x{r['steps_per_s']:>15.1f}"
+                f"{r['loop_pct']:>7.1f}%{r['peak_mib']:>10.0f}",
+                flush=True,
+            )
+    if args.ablations:
+        for size in args.sizes:
+            print(f"\nCIC speed changes undone ({size}: hidden {SIZES[size][0]}, batch {SIZES[size][1]}), median ms")
+            for name, ms in _in_fresh_process(measure_ablations, size, args.device, args.repeats, args.threads):
+                print(f"{name:<55}{ms:>10.2f}")
+
+
+if __name__ == "__main__":
+    main()
