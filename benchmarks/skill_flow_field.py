@@ -4,7 +4,10 @@ For skill values evenly spaced in [0, 1] and positions on a grid over the arena 
 arrow is the deterministic action (the force on the mass), i.e. the direction of motion that skill
 starts at that position. Distinct skills should point in distinct directions.
 
-    MUJOCO_GL=disable python benchmarks/skill_flow_field.py --steps 50000 --out docs/skill_flow_field.png
+Small-study settings (those of ``tests/test_cic.py::test_cic_learns_on_the_point_mass``): hidden 64,
+batch 64, learning rate 1e-3 for actor, critic and discriminator, one update per env step.
+
+    MUJOCO_GL=disable python benchmarks/skill_flow_field.py --steps 20000 --out docs/skill_flow_field.png
 """
 
 from __future__ import annotations
@@ -25,9 +28,10 @@ from sb3_cic import CIC  # noqa: E402
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--steps", type=int, default=50_000)
-    parser.add_argument("--hidden-dim", type=int, default=128)
-    parser.add_argument("--batch-size", type=int, default=256)
+    parser.add_argument("--steps", type=int, default=20_000)
+    parser.add_argument("--hidden-dim", type=int, default=64)
+    parser.add_argument("--batch-size", type=int, default=64)
+    parser.add_argument("--lr", type=float, default=1e-3)
     parser.add_argument("--skills", type=int, default=6)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", default="docs/skill_flow_field.png")
@@ -35,7 +39,8 @@ def main() -> None:
     th.set_num_threads(1)
     start = time.time()
     model = CIC("MlpPolicy", "URLB/point_mass-v0", skill_dim=1, policy_kwargs={"hidden_dim": args.hidden_dim},
-                batch_size=args.batch_size, buffer_size=args.steps, seed=args.seed)
+                batch_size=args.batch_size, buffer_size=args.steps, learning_starts=1000, train_freq=1,
+                learning_rate=args.lr, cic_lr=args.lr, seed=args.seed)
     model.learn(args.steps)
     metrics = model.logger.name_to_value
     grid = np.linspace(-0.25, 0.25, 9)
