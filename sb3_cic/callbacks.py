@@ -113,6 +113,7 @@ class SkillGridSweepCallback(SkillSelectionCallback):
         self.results.append((skill, self._return))
         self.logger.record("sweep/candidate", float(skill.mean()) if skill.size else 0.0)
         self.logger.record("sweep/window_return", self._return)
+        self.logger.dump(self.num_timesteps)  # one record per window (records between dumps overwrite)
         self._index += 1
         self._steps, self._return = 0, 0.0
         if self._index < len(self.candidates):

@@ -36,7 +36,7 @@ from stable_baselines3.common.utils import set_random_seed
 
 from envs.tasks import DOMAIN_TASKS
 from sb3_cic import zoo
-from sb3_cic.callbacks import SkillGridSweepCallback, URLBEvalCallback
+from sb3_cic.callbacks import SkillGridSweepCallback, SkillSelectionCallback, URLBEvalCallback
 from sb3_cic.constants import EXPERT_SCORES
 
 #: URLB's pre-training snapshots
@@ -105,6 +105,8 @@ class FinetuneResult:
     expert_score: float | None
     n_evaluations: int
     finetune_skill: list[float] | None
+    #: the grid sweep's (candidate c, window return) pairs, when the skill was chosen by a sweep
+    skill_sweep: list[list[float]] | None
     wall_time_s: dict[str, float | None] = field(default_factory=dict)
     hyperparams: dict[str, str] = field(default_factory=dict)
 
@@ -283,6 +285,9 @@ def finetune(
         kwargs = {k: v for k, v in hyperparams.items() if k not in ("policy", "policy_kwargs")}
         snapshot_path = Path(study) / "pretrain" / f"{method}_{domain}" / f"snapshot_{snapshot}.zip"
         model = cls.load_pretrained(snapshot_path, env_id, **common, **kwargs)
+    if model.skill_prior is not None and not any(isinstance(c, SkillSelectionCallback) for c in callbacks):
+        selection = model.make_finetune_callback()  # what learn() would add; kept here to record the sweep
+        callbacks = callbacks if selection is None else [selection, *callbacks]
     for callback in callbacks:  # the sweep lasts learning_starts steps (also when the yaml sets neither)
         if isinstance(callback, SkillGridSweepCallback):
             callback.sweep_steps = model.learning_starts
@@ -316,6 +321,7 @@ def finetune(
             writer.writerow([step, ret, "" if math.isnan(score) else score])
     final_step, final_return, final_score = evaluation.history[-1]
     skill = getattr(model, "finetune_skill", None)
+    sweep = next((c.results for c in callbacks if isinstance(c, SkillGridSweepCallback)), None)
     result = FinetuneResult(
         method=method,
         label=label,
@@ -331,6 +337,7 @@ def finetune(
         expert_score=expert,
         n_evaluations=len(evaluation.history),
         finetune_skill=None if skill is None else [float(v) for v in np.asarray(skill)],
+        skill_sweep=None if sweep is None else [[float(np.mean(z)), float(ret)] for z, ret in sweep],
         wall_time_s={"finetune": wall, "pretrain": None if pre is None else pre["wall_time_s"]["pretrain"]},
         hyperparams=_describe({**hyperparams, "policy_kwargs": model.policy_kwargs}),
     )

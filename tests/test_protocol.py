@@ -75,6 +75,10 @@ def test_study_layout(study: Path):
         assert r["final_normalized_score"] == pytest.approx(r["final_return"] / EXPERT_SCORES[r["task"]])
         if r["method"] == "cic":  # the grid sweep chose a constant skill
             assert r["finetune_skill"] is not None and len(set(r["finetune_skill"])) == 1
+            sweep = np.array(r["skill_sweep"])  # every candidate with its window return; the best was kept
+            assert len(sweep) > 1 and sweep[:, 1].argmax() == np.abs(sweep[:, 0] - r["finetune_skill"][0]).argmin()
+        else:
+            assert r["skill_sweep"] is None
     assert list(study.glob("tensorboard/*/events.out.tfevents.*"))
 
 
