@@ -1,0 +1,174 @@
+"""Checks of a CIC pre-training that rule out (or reveal) a bug, printed as markdown tables.
+
+Given a pre-training snapshot (and optionally the tensorboard run of its pre-training):
+
+* **pre-training curves**: contrastive loss, discriminator top-1 accuracy, intrinsic reward mean
+  and std, read from tensorboard every ``--every`` steps;
+* **discriminator on fresh rollouts**: the snapshot's policy acts with exploration noise 0.2 and a
+  skill resampled every 50 steps (as in pre-training); on batches of ``(s, z, s_{t+3})`` from those
+  rollouts the contrastive loss and top-1 accuracy against chance (``log B``, ``1 / B``) and the
+  intrinsic reward's mean and std;
+* **coverage**: particle entropy (mean ``log(1 + mean 12-NN distance)``) of visited states and the
+  range of the walker's torso height, for the snapshot with random skills, an untrained CIC actor
+  and uniformly random actions;
+* **skill sweep**: per task, the paper's grid sweep (40 constant skills ``c * 1``, 100 steps each,
+  acting with the pre-trained policy) as fine-tuning runs it: the window returns and the best ``c``.
+
+    MUJOCO_GL=disable python benchmarks/cic_diagnostics.py --snapshot STUDY/pretrain/cic_walker/snapshot_250000.zip \\
+        --tensorboard STUDY/tensorboard/pretrain_cic_walker_1 --tasks walker_flip walker_run
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+
+os.environ.setdefault("MUJOCO_GL", "disable")
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+import gymnasium as gym  # noqa: E402
+import numpy as np  # noqa: E402
+import torch as th  # noqa: E402
+from stable_baselines3.common.type_aliases import ReplayBufferSamples  # noqa: E402
+
+import sb3_cic  # noqa: E402,F401
+from sb3_cic import CIC, SkillGridSweepCallback  # noqa: E402
+from sb3_cic.rewards.particle import knn_distances  # noqa: E402
+
+#: index of the torso height in the walker observation (orientations 14, height 1, velocity 9)
+WALKER_HEIGHT = 14
+
+
+def pretraining_curves(logdir: str, every: int) -> list[str]:
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    events = EventAccumulator(logdir, size_guidance={"scalars": 0})
+    events.Reload()
+    tags = ["reward/contrastive_loss", "reward/disc_accuracy", "reward/intrinsic_reward_mean", "reward/intrinsic_reward_std"]
+    series = {tag: {s.step: s.value for s in events.Scalars(tag)} for tag in tags if tag in events.Tags()["scalars"]}
+    if not series:
+        return ["(no reward metrics in the tensorboard run)"]
+    steps = sorted(next(iter(series.values())))
+    lines = ["| step | contrastive loss | disc. accuracy | intrinsic reward mean | intrinsic reward std |", "|---:|---:|---:|---:|---:|"]
+    for target in range(every, steps[-1] + every, every):
+        step = min(steps, key=lambda s: abs(s - target))
+        values = [series[tag].get(step, math.nan) for tag in tags]
+        lines.append(f"| {step} | " + " | ".join(f"{v:.3f}" for v in values) + " |")
+    return lines
+
+
+def rollout(model: CIC | None, env_id: str, steps: int, seed: int, skill_dim: int, noise: float = 0.2) -> dict[str, np.ndarray]:
+    """States, skills and actions of ``steps`` env steps (``model=None``: uniformly random actions)."""
+    env = gym.make(env_id)
+    rng = np.random.default_rng(seed)
+    state, _ = env.reset(seed=seed)
+    states, skills = [], []
+    skill = rng.uniform(size=skill_dim).astype(np.float32)
+    for t in range(steps):
+        if t % 50 == 0:
+            skill = rng.uniform(size=skill_dim).astype(np.float32)
+        states.append(state)
+        skills.append(skill)
+        if model is None:
+            action = rng.uniform(-1, 1, size=env.action_space.shape)
+        else:
+            mu, _ = model.predict(np.concatenate([state, skill])[None], deterministic=True)
+            action = np.clip(mu[0] + noise * rng.standard_normal(mu.shape[1]), -1, 1)
+        state, _, terminated, truncated, _ = env.step(action.astype(np.float32))
+        if terminated or truncated:
+            state, _ = env.reset()
+    env.close()
+    return {"states": np.array(states, dtype=np.float32), "skills": np.array(skills, dtype=np.float32)}
+
+
+def particle_entropy(states: np.ndarray, scale: np.ndarray, n: int = 2000, k: int = 12) -> float:
+    x = th.as_tensor(states[:: max(1, len(states) // n)] / scale)
+    return float(th.log1p(knn_distances(x, x, k + 1)[:, 1:].mean(dim=1)).mean())
+
+
+def discriminator(model: CIC, data: dict[str, np.ndarray], batch: int, n_step: int = 3) -> dict[str, float]:
+    """Contrastive loss, accuracy and intrinsic reward on batches of (s, z, s_{t+n}) within a skill."""
+    states, skills = data["states"], data["skills"]
+    idx = np.array([t for t in range(len(states) - n_step) if (t % 50) + n_step < 50 and (t % 1000) + n_step < 1000])
+    rng = np.random.default_rng(0)
+    losses, accuracies, rewards = [], [], []
+    module = model.reward_module
+    for _ in range(20):
+        b = rng.choice(idx, size=batch, replace=False)
+        obs = th.as_tensor(np.concatenate([states[b], skills[b]], 1), device=model.device)
+        next_obs = th.as_tensor(np.concatenate([states[b + n_step], skills[b]], 1), device=model.device)
+        zeros = th.zeros(batch, 1, device=model.device)
+        sample = ReplayBufferSamples(obs, zeros, next_obs, zeros, zeros, None)
+        with th.no_grad():
+            loss, accuracy, next_embedding = module._loss(sample)
+            reward = module.particle(next_embedding)
+        losses.append(loss.item())
+        accuracies.append(accuracy.item())
+        rewards.append(reward.cpu().numpy())
+    r = np.concatenate(rewards)
+    return {"loss": float(np.mean(losses)), "accuracy": float(np.mean(accuracies)), "reward_mean": float(r.mean()), "reward_std": float(r.std())}
+
+
+def sweep(snapshot: str, env_id: str, seed: int) -> list[tuple[float, float]]:
+    """The fine-tuning grid sweep (4,000 steps, no updates) of the snapshot on a task."""
+    model = CIC.load_pretrained(snapshot, env_id, seed=seed, learning_starts=4000)
+    callback = SkillGridSweepCallback(sweep_steps=4000, window=100)
+    model.learn(4000, callback=callback)
+    return [(float(np.mean(z)), ret) for z, ret in callback.results]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--snapshot", required=True, help="pre-trained CIC (.zip)")
+    parser.add_argument("--tensorboard", default=None, help="tensorboard run of the pre-training")
+    parser.add_argument("--every", type=int, default=25_000, help="steps between rows of the pre-training curves")
+    parser.add_argument("--domain-id", default="URLB/walker-v0")
+    parser.add_argument("--tasks", nargs="*", default=["walker_flip", "walker_run"])
+    parser.add_argument("--steps", type=int, default=5000, help="env steps per coverage rollout")
+    parser.add_argument("--batch", type=int, default=256)
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args()
+    th.set_num_threads(1)
+
+    model = CIC.load(args.snapshot, device="cpu")
+    untrained = CIC("MlpPolicy", args.domain_id, skill_dim=model.skill_dim, policy_kwargs=model.policy_kwargs,
+                    buffer_size=10, seed=args.seed, device="cpu")
+    print(f"# CIC diagnostics: {args.snapshot}\n")
+    if args.tensorboard:
+        print("## Pre-training curves (tensorboard)\n")
+        print("\n".join(pretraining_curves(args.tensorboard, args.every)) + "\n")
+
+    runs = {
+        "pre-trained policy, random skills": rollout(model, args.domain_id, args.steps, args.seed, model.skill_dim),
+        "untrained CIC actor, random skills": rollout(untrained, args.domain_id, args.steps, args.seed, model.skill_dim),
+        "uniformly random actions": rollout(None, args.domain_id, args.steps, args.seed, model.skill_dim),
+    }
+    scale = runs["uniformly random actions"]["states"].std(0) + 1e-6
+    print(f"## Discriminator and coverage on fresh rollouts ({args.steps} steps each, batches of {args.batch})\n")
+    print(f"Chance: loss log B = {math.log(args.batch):.3f}, accuracy 1/B = {1 / args.batch:.4f}. "
+          "Particle entropy on states divided by the random-action std per dimension.\n")
+    print("| rollout | contrastive loss | accuracy | intrinsic reward mean +- std | particle entropy | torso height min / max |")
+    print("|---|---:|---:|---:|---:|---:|")
+    for name, data in runs.items():
+        d = discriminator(model, data, args.batch)
+        height = data["states"][:, WALKER_HEIGHT]
+        print(f"| {name} | {d['loss']:.3f} | {d['accuracy']:.3f} | {d['reward_mean']:.3f} +- {d['reward_std']:.3f} | "
+              f"{particle_entropy(data['states'], scale):.3f} | {height.min():.2f} / {height.max():.2f} |")
+
+    for task in args.tasks:
+        domain, name = task.split("_", 1)
+        results = sweep(args.snapshot, f"URLB/{domain}-{name}-v0", args.seed)
+        returns = np.array([r for _, r in results])
+        best = int(returns.argmax())
+        print(f"\n## Skill sweep on {task} (40 candidates x 100 steps)\n")
+        print(f"best c = {results[best][0]:.3f} (window return {returns[best]:.1f}); window returns min {returns.min():.1f}, "
+              f"median {np.median(returns):.1f}, max {returns.max():.1f}\n")
+        print("| c | " + " | ".join(f"{c:.2f}" for c, _ in results[::4]) + " |")
+        print("|---|" + "---:|" * len(results[::4]))
+        print("| return | " + " | ".join(f"{r:.1f}" for _, r in results[::4]) + " |")
+
+
+if __name__ == "__main__":
+    main()
