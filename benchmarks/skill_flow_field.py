@@ -4,6 +4,8 @@ For skill values evenly spaced in [0, 1] and positions on a grid over the arena 
 arrow is the deterministic action (the force on the mass), i.e. the direction of motion that skill
 starts at that position. Distinct skills should point in distinct directions.
 
+The embedding size of the discriminator's networks is 16 (``cic_embed_dim``): with the CIC code's
+default (``skill_dim``, here 1) the normalised embeddings are +-1 and the loss stays at log(batch).
 Small-study settings (those of ``tests/test_cic.py::test_cic_learns_on_the_point_mass``): hidden 64,
 batch 64, learning rate 1e-3 for actor, critic and discriminator, one update per env step.
 
@@ -32,13 +34,14 @@ def main() -> None:
     parser.add_argument("--hidden-dim", type=int, default=64)
     parser.add_argument("--batch-size", type=int, default=64)
     parser.add_argument("--lr", type=float, default=1e-3)
+    parser.add_argument("--embed-dim", type=int, default=16)
     parser.add_argument("--skills", type=int, default=6)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", default="docs/skill_flow_field.png")
     args = parser.parse_args()
     th.set_num_threads(1)
     start = time.time()
-    model = CIC("MlpPolicy", "URLB/point_mass-v0", skill_dim=1, policy_kwargs={"hidden_dim": args.hidden_dim},
+    model = CIC("MlpPolicy", "URLB/point_mass-v0", skill_dim=1, cic_embed_dim=args.embed_dim, policy_kwargs={"hidden_dim": args.hidden_dim},
                 batch_size=args.batch_size, buffer_size=args.steps, learning_starts=1000, train_freq=1,
                 learning_rate=args.lr, cic_lr=args.lr, seed=args.seed)
     model.learn(args.steps)

@@ -67,11 +67,11 @@ class DMCEnv(gym.Env):
         self._act_low = act_spec.minimum.astype(np.float64)
         self._act_high = act_spec.maximum.astype(np.float64)
         self.action_space = spaces.Box(-1.0, 1.0, shape=act_spec.shape, dtype=np.float32)
-        # half the action range: ``low + (a + 1) * half_range`` equals ``low + (a + 1) * 0.5 * (high - low)``
-        # bit for bit (scaling by 0.5 is exact)
+        # ``a`` in [-1, 1] -> ``mid + a * half_range``, from ``low`` to ``high``
         self._act_half_range = 0.5 * (self._act_high - self._act_low)
-        # multiplying by 1 is exact: skip it for [-1, 1] physics bounds (walker, point mass)
-        self._act_unit_range = bool(np.all(self._act_half_range == 1.0))
+        self._act_mid = 0.5 * (self._act_high + self._act_low)
+        # physics bounds of exactly [-1, 1] (walker, quadruped, point mass): the rescaling is the identity
+        self._act_unit_range = bool(np.all(self._act_low == -1.0) and np.all(self._act_high == 1.0))
         # array operands: cheaper in ufuncs than Python scalars
         self._act_ones = np.ones(act_spec.shape, dtype=np.float64)
         self._act_minus_ones = -self._act_ones
@@ -109,15 +109,13 @@ class DMCEnv(gym.Env):
         return self._flatten(time_step.observation), {}
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
-        # clip to [-1, 1] in float64 and rescale to the physics bounds, in place on one new array:
-        # bit for bit ``low + (clip(a, -1, 1) + 1) * 0.5 * (high - low)``, but np.clip and the
-        # temporaries cost about twice as much as these in-place ufuncs
+        # clip to [-1, 1] in float64 and rescale to the physics bounds (``mid + a * half_range``; nothing
+        # to do for [-1, 1] bounds), in place on one new array: np.clip and temporaries cost twice as much
         scaled = np.maximum(action, self._act_minus_ones, dtype=np.float64)
         np.minimum(scaled, self._act_ones, out=scaled)
-        scaled += self._act_ones
         if not self._act_unit_range:
             scaled *= self._act_half_range
-        scaled += self._act_low
+            scaled += self._act_mid
         time_step = self._env.step(scaled)
         task_reward = float(time_step.reward or 0.0)
         last = time_step.step_type == dm_env.StepType.LAST

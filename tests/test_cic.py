@@ -108,6 +108,9 @@ def test_cic_default_hyper_parameters():
     assert rm.temperature == 0.5 and rm.particle.k == 12 and rm.particle.clip == 0.0005 and rm.particle.use_rms
     assert rm.optimizer.param_groups[0]["lr"] == 1e-4
     assert model.reward_free and model.finetune_skill_choice == "sweep"
+    one = CIC("MlpPolicy", "URLB/point_mass-v0", skill_dim=1, cic_embed_dim=16, buffer_size=10, cic_hidden_dim=8)
+    assert shapes(one.reward_module.skill_net) == [(1, 8), (8, 8), (8, 16)]
+    assert shapes(one.reward_module.pred_net)[0] == (32, 8)
 
 
 class SkillReward(gym.Wrapper):

@@ -73,14 +73,16 @@ def test_observation_in_dm_control_key_order():
     np.testing.assert_allclose(obs, expected.astype(np.float32), rtol=1e-6)
 
 
-def test_actions_rescaled_to_physics_bounds():
-    env = gym.make("URLB/point_mass-reach-v0").unwrapped
+@pytest.mark.parametrize("env_id", ["URLB/point_mass-reach-v0", "URLB/quadruped-walk-v0"])
+def test_actions_rescaled_to_physics_bounds(env_id):
+    env = gym.make(env_id).unwrapped
     env.reset(seed=0)
     spec = env.dm_env.action_spec()
-    env.step(np.ones(2, dtype=np.float32))
-    np.testing.assert_allclose(env.physics.data.ctrl, spec.maximum)
-    env.step(-np.ones(2, dtype=np.float32))
-    np.testing.assert_allclose(env.physics.data.ctrl, spec.minimum)
+    ones = np.ones(spec.shape, dtype=np.float32)
+    for action, expected in [(ones, spec.maximum), (-ones, spec.minimum), (0 * ones, (spec.maximum + spec.minimum) / 2),
+                             (3 * ones, spec.maximum), (-3 * ones, spec.minimum)]:  # out of [-1, 1]: clipped
+        env.step(action)
+        np.testing.assert_allclose(env.physics.data.ctrl, expected, rtol=1e-12, atol=1e-12)
 
 
 @pytest.mark.parametrize("env_id", ["URLB/walker-flip-v0", "URLB/quadruped-jump-v0", "URLB/jaco-reach_bottom_right-v0"])

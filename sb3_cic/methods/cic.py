@@ -33,6 +33,8 @@ class CIC(URLBDDPG):
     :param env: environment id, environment or VecEnv (wrapped with the skill wrapper if needed)
     :param skill_dim: skill size (64)
     :param cic_hidden_dim: hidden width of state_net, pred_net, skill_net (default: the policy's, 1024)
+    :param cic_embed_dim: output size of those networks (default: ``skill_dim``, as the CIC code;
+        give e.g. 16 with ``skill_dim`` 1, whose normalised 1-d embeddings carry no information)
     :param cic_lr: learning rate of the discriminator (1e-4)
     :param temperature: contrastive temperature (0.5)
     :param knn_k: neighbours of the particle estimator (12)
@@ -47,6 +49,7 @@ class CIC(URLBDDPG):
         env: GymEnv | str,
         skill_dim: int = 64,
         cic_hidden_dim: int | None = None,
+        cic_embed_dim: int | None = None,
         cic_lr: float = 1e-4,
         temperature: float = 0.5,
         knn_k: int = 12,
@@ -58,6 +61,7 @@ class CIC(URLBDDPG):
         if finetune_skill_choice not in ("sweep", "fixed"):
             raise ValueError(f"finetune_skill_choice must be 'sweep' or 'fixed', got {finetune_skill_choice!r}")
         self.cic_hidden_dim = cic_hidden_dim
+        self.cic_embed_dim = cic_embed_dim
         self.cic_lr = cic_lr
         self.temperature = temperature
         self.knn_k = knn_k
@@ -72,6 +76,7 @@ class CIC(URLBDDPG):
             int(self.action_space.shape[0]),
             skill_dim=self.skill_dim,
             hidden_dim=self.cic_hidden_dim or self.hidden_dim,
+            embed_dim=self.cic_embed_dim,
             lr=self.cic_lr,
             temperature=self.temperature,
             knn_k=self.knn_k,

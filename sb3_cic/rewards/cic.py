@@ -13,9 +13,10 @@ from sb3_cic.rewards.particle import ParticleEntropy
 class CICReward(RewardModule):
     """Contrastive Intrinsic Control (Laskin et al., 2022).
 
-    * ``state_net`` g1: state -> h -> h -> skill_dim, applied to s and s';
-      ``pred_net``: [g1(s), g1(s')] -> h -> h -> skill_dim (the key);
-      ``skill_net`` g2: skill -> h -> h -> skill_dim (the query).
+    * ``state_net`` g1: state -> h -> h -> e, applied to s and s';
+      ``pred_net``: [g1(s), g1(s')] -> h -> h -> e (the key);
+      ``skill_net`` g2: skill -> h -> h -> e (the query);
+      the embedding size ``e`` is ``skill_dim`` as in the CIC code unless ``embed_dim`` is given.
     * Loss (paper, Listing 2): cross-entropy of ``normalize(q) normalize(k)^T / temperature`` with the
       diagonal as positives. (The reference code subtracts exp(1/T) from the denominator; not followed.)
     * Reward: particle entropy (k nearest neighbours in the batch) of ``g1(s')``.
@@ -27,6 +28,8 @@ class CICReward(RewardModule):
     :param action_dim: action size
     :param skill_dim: skill size (64)
     :param hidden_dim: hidden width of the three networks (1024)
+    :param embed_dim: output size of the three networks (default: ``skill_dim``; with ``skill_dim`` 1
+        the normalised embeddings would be +-1 and carry no information, so give more, e.g. 16)
     :param lr: Adam learning rate (1e-4)
     :param temperature: contrastive temperature (0.5)
     :param knn_k: neighbours of the entropy estimator (12)
@@ -41,6 +44,7 @@ class CICReward(RewardModule):
         action_dim: int,
         skill_dim: int = 64,
         hidden_dim: int = 1024,
+        embed_dim: int | None = None,
         lr: float = 1e-4,
         temperature: float = 0.5,
         knn_k: int = 12,
@@ -50,9 +54,10 @@ class CICReward(RewardModule):
     ) -> None:
         super().__init__(state_dim, action_dim, skill_dim, lr)
         self.temperature = temperature
-        self.state_net = mlp(state_dim, hidden_dim, skill_dim)
-        self.pred_net = mlp(2 * skill_dim, hidden_dim, skill_dim)
-        self.skill_net = mlp(skill_dim, hidden_dim, skill_dim)
+        embed_dim = embed_dim or skill_dim
+        self.state_net = mlp(state_dim, hidden_dim, embed_dim)
+        self.pred_net = mlp(2 * embed_dim, hidden_dim, embed_dim)
+        self.skill_net = mlp(skill_dim, hidden_dim, embed_dim)
         self.particle = ParticleEntropy(k=knn_k, avg=knn_avg, rms=knn_rms, clip=knn_clip)
         self.make_optimizer()
 
