@@ -83,14 +83,28 @@ def per_task(results: list[dict[str, Any]]) -> list[dict[str, Any]]:
     return rows
 
 
-def score_matrices(results: list[dict[str, Any]]) -> tuple[dict[str, np.ndarray], dict[str, list[str]], dict[str, list[int]]]:
+def common_tasks(results: list[dict[str, Any]]) -> list[str]:
+    """The tasks every method label of ``results`` ran."""
+    tasks: dict[str, set[str]] = defaultdict(set)
+    for result in results:
+        tasks[result["label"]].add(result["task"])
+    return sorted(set.intersection(*tasks.values())) if tasks else []
+
+
+def score_matrices(
+    results: list[dict[str, Any]], tasks: Sequence[str] | None = None
+) -> tuple[dict[str, np.ndarray], dict[str, list[str]], dict[str, list[int]]]:
     """Per method label, the ``(runs, tasks)`` matrix of normalised scores (seeds common to all its tasks).
 
     Methods with a task without normalised score are left out.
+
+    :param results: fine-tuning results
+    :param tasks: only these tasks (default: all)
     """
     by_label: dict[str, dict[str, dict[int, float | None]]] = defaultdict(lambda: defaultdict(dict))
     for result in results:
-        by_label[result["label"]][result["task"]][result["seed"]] = result["final_normalized_score"]
+        if tasks is None or result["task"] in tasks:
+            by_label[result["label"]][result["task"]][result["seed"]] = result["final_normalized_score"]
     matrices, tasks_of, seeds_of = {}, {}, {}
     for label, tasks in sorted(by_label.items()):
         names = sorted(tasks)
@@ -232,7 +246,9 @@ def write_report(study: str | Path, reps: int = 2000, seed: int = 0) -> dict[str
     if not results:
         raise FileNotFoundError(f"no fine-tuning results under {study / 'finetune'}")
     rows = per_task(results)
-    matrices, tasks_of, seeds_of = score_matrices(results)
+    # methods that ran different tasks are compared on the tasks they all ran
+    all_tasks, shared = sorted({r["task"] for r in results}), common_tasks(results)
+    matrices, tasks_of, seeds_of = score_matrices(results, shared if shared and shared != all_tasks else None)
     aggregates = aggregate_scores(matrices, reps=reps, seed=seed)
 
     lines = [f"# URLB report: `{study.name}`", ""]
@@ -251,6 +267,8 @@ def write_report(study: str | Path, reps: int = 2000, seed: int = 0) -> dict[str
             f"| {_pm(row['score_mean'], row['score_se'], 3)} |"
         )
     lines += ["", f"## Aggregates (normalised scores, rliable, stratified bootstrap 95% CI, {reps} reps)", ""]
+    if shared and shared != all_tasks:
+        lines += [f"Over the tasks every method ran: {', '.join(shared)}.", ""]
     if aggregates:
         lines += ["| method | runs x tasks | IQM | median | mean | optimality gap |", "|---|---:|---:|---:|---:|---:|"]
         for label, agg in aggregates.items():

@@ -18,6 +18,7 @@ import yaml
 
 from sb3_cic.cli import main
 from sb3_cic.constants import EXPERT_SCORES
+from sb3_cic import evaluation
 from sb3_cic.evaluation import write_report
 from sb3_cic.protocol import Settings, run_protocol
 
@@ -162,3 +163,17 @@ def test_zoo_cli_train_finetune_enjoy(tmp_path: Path, monkeypatch: pytest.Monkey
     with pytest.raises(SystemExit, match="pre-train"):
         main(["train", "--algo", "cic", "--env", "URLB/point_mass-reach-v0", *small])
     th.set_num_threads(threads)
+
+
+def test_aggregates_compare_methods_on_their_common_tasks():
+    def run(label, task, seed, score):
+        return {"label": label, "task": task, "seed": seed, "final_normalized_score": score}
+
+    results = [run("cic", t, s, 0.1 * s + (t == "b")) for t in "ab" for s in (0, 1)]
+    results += [run("ddpg", t, s, 0.2) for t in "ab" for s in (0, 1)] + [run("ddpg", "c", 0, 0.9)]
+    assert evaluation.common_tasks(results) == ["a", "b"]
+    everything, _, seeds_all = evaluation.score_matrices(results)
+    assert seeds_all["ddpg"] == [0] and everything["ddpg"].shape == (1, 3)  # task c has seed 0 only
+    matrices, tasks_of, seeds_of = evaluation.score_matrices(results, ["a", "b"])
+    assert tasks_of == {"cic": ["a", "b"], "ddpg": ["a", "b"]} and seeds_of["ddpg"] == [0, 1]
+    np.testing.assert_allclose(matrices["cic"], [[0.0, 1.0], [0.1, 1.1]])
