@@ -50,7 +50,7 @@ from torch import nn  # noqa: E402
 from torch.utils.flop_counter import FlopCounterMode  # noqa: E402
 
 SIZES = {"full": (1024, 1024), "small": (256, 256)}
-METHODS = ["ddpg", "cic", "icm", "disagreement", "rnd", "apt", "proto", "diayn", "smm", "aps"]
+METHODS = ["ddpg", "cic", "icm", "disagreement", "rnd", "apt", "protorl", "diayn", "smm", "aps"]
 
 
 def _sync(device: th.device) -> None:
