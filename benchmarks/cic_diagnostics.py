@@ -11,6 +11,8 @@ Given a pre-training snapshot (and optionally the tensorboard run of its pre-tra
 * **coverage**: particle entropy (mean ``log(1 + mean 12-NN distance)``) of visited states and the
   range of the walker's torso height, for the snapshot with random skills, an untrained CIC actor
   and uniformly random actions;
+* **skill dependence**: mean distance between the actor's actions under two random skills at the
+  same visited state, for the pre-trained and an untrained actor (0: the policy ignores the skill);
 * **skill sweep**: per task, the paper's grid sweep (40 constant skills ``c * 1``, 100 steps each,
   acting with the pre-trained policy) as fine-tuning runs it: the window returns and the best ``c``.
 
@@ -111,6 +113,17 @@ def discriminator(model: CIC, data: dict[str, np.ndarray], batch: int, n_step: i
     return {"loss": float(np.mean(losses)), "accuracy": float(np.mean(accuracies)), "reward_mean": float(r.mean()), "reward_std": float(r.std())}
 
 
+def skill_dependence(model: CIC, states: np.ndarray, n: int = 1000, seed: int = 0) -> float:
+    """Mean L2 distance between ``mu(s, z1)`` and ``mu(s, z2)`` for random skills, over visited states."""
+    rng = np.random.default_rng(seed)
+    s = states[rng.choice(len(states), size=min(n, len(states)), replace=False)]
+    actions = [
+        model.predict(np.concatenate([s, rng.uniform(size=(len(s), model.skill_dim))], 1).astype(np.float32), deterministic=True)[0]
+        for _ in range(2)
+    ]
+    return float(np.linalg.norm(actions[0] - actions[1], axis=1).mean())
+
+
 def sweep(snapshot: str, env_id: str, seed: int) -> list[tuple[float, float]]:
     """The fine-tuning grid sweep (4,000 steps, no updates) of the snapshot on a task."""
     model = CIC.load_pretrained(snapshot, env_id, seed=seed, learning_starts=4000)
@@ -156,6 +169,10 @@ def main() -> None:
         height = data["states"][:, WALKER_HEIGHT]
         print(f"| {name} | {d['loss']:.3f} | {d['accuracy']:.3f} | {d['reward_mean']:.3f} +- {d['reward_std']:.3f} | "
               f"{particle_entropy(data['states'], scale):.3f} | {height.min():.2f} / {height.max():.2f} |")
+
+    states = runs["pre-trained policy, random skills"]["states"]
+    print(f"\nSkill dependence (mean |mu(s, z1) - mu(s, z2)|, actions in [-1, 1]^{model.action_space.shape[0]}): "
+          f"pre-trained {skill_dependence(model, states):.3f}, untrained {skill_dependence(untrained, states):.3f}")
 
     for task in args.tasks:
         domain, name = task.split("_", 1)
