@@ -43,6 +43,8 @@ def knn_distances(source: th.Tensor, target: th.Tensor, k: int) -> th.Tensor:
     :return: ``(B1, k)``
     """
     sq = (source.pow(2).sum(1, keepdim=True) + target.pow(2).sum(1).unsqueeze(0)).addmm_(source, target.T, alpha=-2.0)
+    if source is target:  # exactly 0, not the float rounding residue of |a|^2 + |a|^2 - 2 a.a
+        sq.diagonal().zero_()
     nearest = th.topk(sq, k, dim=1, largest=False, sorted=True).values
     return nearest.clamp_(min=0.0).sqrt_()
 
