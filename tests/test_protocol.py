@@ -99,8 +99,10 @@ def test_report_numbers(study: Path):
         assert row["score_se"] == pytest.approx(scores.std(ddof=1) / np.sqrt(2))
         assert f"| {label} | {task} | 2 | {returns.mean():.1f} ± {returns.std(ddof=1) / np.sqrt(2):.1f} |" in markdown
 
+    assert "Over the tasks every method ran: walker_stand." in markdown  # DDPG ran stand only
     for label in ("cic", "ddpg"):
-        tasks = sorted({r["task"] for r in results if r["label"] == label})
+        tasks = ["walker_stand"]
+        assert report["matrices"][label]["tasks"] == tasks
         score = {(r["task"], r["seed"]): r["final_normalized_score"] for r in results if r["label"] == label}
         matrix = np.array([[score[(t, s)] for t in tasks] for s in SEEDS])  # runs x tasks
         flat = np.sort(matrix.ravel())
