@@ -246,7 +246,9 @@ def test_pretrain_save_load_finetune(name, tmp_path, recwarn):
 
 
 def test_aps_regression_recovers_linear_task():
-    model = APS("MlpPolicy", "URLB/point_mass-v0", **SMALL)
+    # walker states (24-d) give a well-conditioned phi (condition number ~10); the point mass's 4-d
+    # states give ~4,000, and the float32 rounding of the stored rewards then tilts w on a subset
+    model = APS("MlpPolicy", "URLB/walker-v0", **SMALL)
     model.learn(400)  # random steps only: fills the buffer
     buffer = model.replay_buffer
     n = buffer.pos

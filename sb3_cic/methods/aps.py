@@ -101,7 +101,8 @@ class APSRegressionCallback(SkillSelectionCallback):
         rewards = buffer.rewards[:stored].reshape(-1)
         index = np.arange(len(rewards))
         if len(index) > self.max_samples:
-            index = np.random.default_rng().choice(len(index), self.max_samples, replace=False)
+            # numpy's global generator: seeded with the model (``seed=``), so the subset is reproducible
+            index = np.random.choice(len(index), self.max_samples, replace=False)
         self.n_samples = len(index)
         module = self.model.reward_module
         states = th.as_tensor(next_obs[index, : self.model.state_dim], device=self.model.device)
