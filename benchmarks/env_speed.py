@@ -8,10 +8,13 @@ resets included in the time) are measured for
 * ``shimmy``: ``FlattenObservation(DmControlCompatibilityV0(dm_env))``;
 * ``ours``: ``gymnasium.make("URLB/<domain>-<task>-v0")`` (:class:`envs.dmc.DMCEnv`).
 
-Actions are drawn before the timed loops, so only the environments are timed. The three kinds run
-in turn, ``--block`` steps at a time, until each has run ``--steps`` steps, and each kind's speed is
-that of its fastest block: the one least disturbed by other processes, so that the ratios hold on a
-shared machine. ``ovh`` (overhead) is raw steps/s divided by the wrapper's (1.00 = no overhead).
+Actions are drawn before the timed loops, so only the environments are timed. The three kinds start
+from the same seed and get the same actions (ours in [-1, 1], the others the same controls in physics
+units), so they step through the same trajectory: the cost of a MuJoCo step depends on the state
+(contacts), and different trajectories would skew the ratio. The three kinds run in turn,
+``--block`` steps at a time, until each has run ``--steps`` steps, and each kind's speed is that of
+its fastest block: the one least disturbed by other processes, so that the ratios hold on a shared
+machine. ``ovh`` (overhead) is raw steps/s divided by the wrapper's (1.00 = no overhead).
 
 Usage: ``MUJOCO_GL=disable python benchmarks/env_speed.py --steps 4000 --block 100``
 """
@@ -50,24 +53,31 @@ ENVIRONMENTS: list[tuple[str, str, float]] = [
 _ACTION_ROWS = 1000
 
 
-def _actions(low: np.ndarray, high: np.ndarray, seed: int, dtype: type = np.float64) -> np.ndarray:
-    rng = np.random.default_rng(seed)
-    return rng.uniform(low, high, size=(_ACTION_ROWS, *np.shape(low))).astype(dtype)
+def _actions(shape: tuple[int, ...], seed: int) -> np.ndarray:
+    """The action table: float32, uniform in [-1, 1] (the Gymnasium action space)."""
+    return np.random.default_rng(seed).uniform(-1.0, 1.0, size=(_ACTION_ROWS, *shape)).astype(np.float32)
 
 
-def raw_runner(env: dm_env.Environment, seed: int = 0) -> Callable[[int], float]:
-    """A timer of a dm_env environment stepped with random actions within the physics bounds.
+def _controls(env: dm_env.Environment, actions: np.ndarray) -> np.ndarray:
+    """The same actions in physics units (``mid + a * half_range``, float64), as the adapter sends them."""
+    spec = env.action_spec()
+    return actions.astype(np.float64) * (0.5 * (spec.maximum - spec.minimum)) + 0.5 * (spec.maximum + spec.minimum)
 
-    :param env: the dm_control environment
-    :param seed: seed of the actions
+
+def raw_runner(env: dm_env.Environment, actions: np.ndarray) -> Callable[[int], float]:
+    """A timer of a dm_env environment stepped with the action table in physics units.
+
+    :param env: the dm_control environment, seeded at construction
+    :param actions: the action table in physics units
     :return: ``run(n)``: step ``n`` times (resetting at episode ends), return the seconds taken
     """
-    spec = env.action_spec()
-    actions = _actions(spec.minimum, spec.maximum, seed)
     env.reset()
+    step = 0
 
     def run(n: int) -> float:
-        rows = [actions[i % _ACTION_ROWS] for i in range(n)]
+        nonlocal step
+        rows = [actions[i % _ACTION_ROWS] for i in range(step, step + n)]
+        step += n
         start = time.perf_counter()
         for action in rows:
             if env.step(action).last():
@@ -77,19 +87,20 @@ def raw_runner(env: dm_env.Environment, seed: int = 0) -> Callable[[int], float]
     return run
 
 
-def gym_runner(env: gym.Env, seed: int = 0) -> Callable[[int], float]:
-    """A timer of a Gymnasium environment stepped with random actions in its (Box) action space.
+def gym_runner(env: gym.Env, actions: np.ndarray) -> Callable[[int], float]:
+    """A timer of a Gymnasium environment stepped with the action table.
 
-    :param env: the Gymnasium environment
-    :param seed: seed of the actions
+    :param env: the Gymnasium environment, seeded at construction
+    :param actions: the action table, in the env's action space
     :return: ``run(n)``: step ``n`` times (resetting at episode ends), return the seconds taken
     """
-    space = env.action_space
-    actions = _actions(space.low, space.high, seed, space.dtype)
-    env.reset(seed=seed)
+    env.reset()
+    step = 0
 
     def run(n: int) -> float:
-        rows = [actions[i % _ACTION_ROWS] for i in range(n)]
+        nonlocal step
+        rows = [actions[i % _ACTION_ROWS] for i in range(step, step + n)]
+        step += n
         start = time.perf_counter()
         for action in rows:
             _, _, terminated, truncated, _ = env.step(action)
@@ -112,14 +123,15 @@ def benchmark(domain: str, task: str, steps: int, block: int) -> dict[str, float
     :param block: steps per timed block
     """
     load = loader(domain, task)
-    envs_ = {
-        "raw": load(0),
-        "shimmy": FlattenObservation(DmControlCompatibilityV0(load(0))),
-        "ours": gym.make(f"URLB/{domain}-{task}-v0"),
-    }
+    ours = gym.make(f"URLB/{domain}-{task}-v0")
+    ours.unwrapped._random_state().seed(0)  # type: ignore[attr-defined]  # the seed of load(0)
+    envs_ = {"raw": load(0), "shimmy": FlattenObservation(DmControlCompatibilityV0(load(0))), "ours": ours}
+    actions = _actions(ours.action_space.shape, seed=0)
+    controls = _controls(envs_["raw"], actions)  # type: ignore[arg-type]
     runners = {
-        name: raw_runner(env) if name == "raw" else gym_runner(env)  # type: ignore[arg-type]
-        for name, env in envs_.items()
+        "raw": raw_runner(envs_["raw"], controls),  # type: ignore[arg-type]
+        "shimmy": gym_runner(envs_["shimmy"], controls),  # type: ignore[arg-type]
+        "ours": gym_runner(ours, actions),
     }
     block = max(1, min(block, steps))
     best = {name: float("inf") for name in runners}

@@ -50,6 +50,8 @@ def register_envs() -> None:
                 kwargs={"domain": domain, "task": task, "reward_free": reward_free},
                 # the dm_control time limit ends the episode; no extra TimeLimit wrapper
                 max_episode_steps=None,
+                # no per-step wrappers: DMCEnv steps correctly before a reset too (dm_env resets itself)
+                order_enforce=False,
                 disable_env_checker=True,
             )
 

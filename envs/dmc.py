@@ -23,6 +23,10 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+_LAST = dm_env.StepType.LAST
+#: MuJoCo's ``mjDSBL_CLAMPCTRL`` disable flag (controls of ``ctrllimited`` actuators are not clamped)
+_DISABLE_CLAMPCTRL = 1 << 8
+
 
 class DMCEnv(gym.Env):
     """A dm_control environment as a Gymnasium environment with a flat float32 observation.
@@ -70,11 +74,29 @@ class DMCEnv(gym.Env):
         # ``a`` in [-1, 1] -> ``mid + a * half_range``, from ``low`` to ``high``
         self._act_half_range = 0.5 * (self._act_high - self._act_low)
         self._act_mid = 0.5 * (self._act_high + self._act_low)
-        # physics bounds of exactly [-1, 1] (walker, quadruped, point mass): the rescaling is the identity
+        # physics bounds of exactly [-1, 1] (walker, point mass): the rescaling is the identity
         self._act_unit_range = bool(np.all(self._act_low == -1.0) and np.all(self._act_high == 1.0))
+        self._physics_clamps = self._physics_clamps_controls()
         # array operands: cheaper in ufuncs than Python scalars
         self._act_ones = np.ones(act_spec.shape, dtype=np.float64)
         self._act_minus_ones = -self._act_ones
+
+    def _physics_clamps_controls(self) -> bool:
+        """Whether MuJoCo itself clamps every control to exactly the action spec's bounds.
+
+        Then ``mid + a * half_range`` needs no clip of ``a`` to [-1, 1] first: the affine map is
+        increasing, so clamping its result to ``[low, high]`` (MuJoCo, for ``ctrllimited`` actuators
+        unless ``clampctrl`` is disabled) applies the same control as clipping ``a``.
+        """
+        model = self.physics.model
+        ranges = np.asarray(model.actuator_ctrlrange, dtype=np.float64)
+        return bool(
+            model.nu == self._act_low.size
+            and np.all(model.actuator_ctrllimited)
+            and not model.opt.disableflags & _DISABLE_CLAMPCTRL
+            and np.array_equal(ranges[:, 0], self._act_low.ravel())
+            and np.array_equal(ranges[:, 1], self._act_high.ravel())
+        )
 
     # dm_control objects --------------------------------------------------------------------
     @property
@@ -108,19 +130,34 @@ class DMCEnv(gym.Env):
         time_step = self._env.reset()
         return self._flatten(time_step.observation), {}
 
-    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
-        # clip to [-1, 1] in float64 and rescale to the physics bounds (``mid + a * half_range``; nothing
-        # to do for [-1, 1] bounds), in place on one new array: np.clip and temporaries cost twice as much
-        scaled = np.maximum(action, self._act_minus_ones, dtype=np.float64)
-        np.minimum(scaled, self._act_ones, out=scaled)
-        if not self._act_unit_range:
+    def _control(self, action: np.ndarray) -> np.ndarray:
+        """The physics control of ``action``: clipped to [-1, 1], then ``mid + a * half_range``.
+
+        When MuJoCo clamps the controls to the bounds itself (:meth:`_physics_clamps_controls`), the
+        clip is left to it, and with [-1, 1] bounds the action goes through as it is (MuJoCo copies
+        it into float64 ``ctrl``). Otherwise the clip and the rescaling run in place on one new
+        float64 array (np.clip and temporaries cost twice as much).
+        """
+        if self._physics_clamps:
+            if self._act_unit_range:
+                return action
+            scaled = action * self._act_half_range  # float64, as the half range
+        else:
+            scaled = np.maximum(action, self._act_minus_ones, dtype=np.float64)
+            np.minimum(scaled, self._act_ones, out=scaled)
+            if self._act_unit_range:
+                return scaled
             scaled *= self._act_half_range
-            scaled += self._act_mid
-        time_step = self._env.step(scaled)
+        scaled += self._act_mid
+        return scaled
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
+        time_step = self._env.step(self._control(action))
         task_reward = float(time_step.reward or 0.0)
-        last = time_step.step_type == dm_env.StepType.LAST
-        terminated = bool(last and time_step.discount == 0.0)
-        truncated = bool(last and not terminated)
+        terminated = truncated = False
+        if time_step.step_type is _LAST:
+            terminated = bool(time_step.discount == 0.0)
+            truncated = not terminated
         reward = 0.0 if self.reward_free else task_reward
         return self._flatten(time_step.observation), reward, terminated, truncated, {"task_reward": task_reward}
 

@@ -73,16 +73,30 @@ def test_observation_in_dm_control_key_order():
     np.testing.assert_allclose(obs, expected.astype(np.float32), rtol=1e-6)
 
 
-@pytest.mark.parametrize("env_id", ["URLB/point_mass-reach-v0", "URLB/quadruped-walk-v0"])
-def test_actions_rescaled_to_physics_bounds(env_id):
-    env = gym.make(env_id).unwrapped
-    env.reset(seed=0)
+@pytest.mark.parametrize("physics_clamps", [True, False])
+@pytest.mark.parametrize("env_id", ["URLB/point_mass-reach-v0", "URLB/quadruped-walk-v0", "URLB/jaco-reach_top_left-v0"])
+def test_actions_rescaled_to_physics_bounds(env_id, physics_clamps):
+    def make():
+        env = gym.make(env_id).unwrapped
+        assert env._physics_clamps  # MuJoCo clamps these envs' controls to the action spec's bounds
+        env._physics_clamps = physics_clamps  # False: the adapter's own clip
+        env.reset(seed=0)
+        return env
+
+    env, twin = make(), make()
     spec = env.dm_env.action_spec()
     ones = np.ones(spec.shape, dtype=np.float32)
     for action, expected in [(ones, spec.maximum), (-ones, spec.minimum), (0 * ones, (spec.maximum + spec.minimum) / 2),
-                             (3 * ones, spec.maximum), (-3 * ones, spec.minimum)]:  # out of [-1, 1]: clipped
+                             (0.5 * ones, spec.minimum + 0.75 * (spec.maximum - spec.minimum))]:
         env.step(action)
+        twin.step(action)
         np.testing.assert_allclose(env.physics.data.ctrl, expected, rtol=1e-12, atol=1e-12)
+    # out of [-1, 1]: the same step as the clipped action (clipped by the adapter or clamped by MuJoCo)
+    for outside in (3 * ones, -3 * ones, np.linspace(-2, 2, ones.size, dtype=np.float32)):
+        obs, *_ = env.step(outside)
+        obs_clipped, *_ = twin.step(np.clip(outside, -1, 1))
+        np.testing.assert_array_equal(obs, obs_clipped)
+        np.testing.assert_array_equal(env.physics.get_state(), twin.physics.get_state())
 
 
 @pytest.mark.parametrize("env_id", ["URLB/walker-flip-v0", "URLB/quadruped-jump-v0", "URLB/jaco-reach_bottom_right-v0"])
