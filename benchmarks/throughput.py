@@ -4,16 +4,18 @@ For each method and size (``full``: hidden 1024, batch 1024, URLB; ``small``: hi
 one fresh process (so that its peak memory is its own) builds the model on ``URLB/walker-v0``
 (DDPG: ``URLB/walker-stand-v0``), fills the replay buffer with random steps, and measures
 
-* ``update ms``: median time of one update (``model.train(1, batch)``: sampling, the reward
-  module's update and relabelling, critic and actor steps, target update), after warm-up;
+* ``update ms``: time of one update (``model.train(1, batch)``: sampling, the reward module's
+  update and relabelling, critic and actor steps, target update), the fastest of ``--repeats``
+  after warm-up, timed in turns with the matmul below (see :func:`best_times`);
 * ``GFLOP``: the update's floating-point operations, counted from its matrix products by
   ``torch.utils.flop_counter.FlopCounterMode`` (forward and backward);
 * ``bound ms``: GFLOP divided by this machine's matmul rate (a ``n x n x n`` matmul, ``n`` = hidden
-  size, best of repeats, same threads): the time the update would take at the rate of its
-  matrix products alone; ``x bound`` = update / bound;
+  size, fastest of the same turns, same threads): the time the update would take at the rate of
+  its matrix products alone; ``x bound`` = update / bound;
 * ``learn steps/s``: env steps per second of ``learn()`` while training (one update every 2 steps),
-  and ``loop %``: the time of ``learn()`` above ``updates x update + steps x env step`` (env steps
-  through the VecEnv, skill wrapper and Monitor), i.e. what SB3's loop adds, action selection included;
+  and ``loop %``: the time of that ``learn()`` outside ``model.train`` and the VecEnv's ``step``
+  (both timed inside it; env steps include the skill wrapper and Monitor), over the time inside
+  them, i.e. what SB3's loop adds, action selection included;
 * ``peak MiB``: the process's peak resident memory (CPU; the buffer holds only the steps taken)
   or ``torch.cuda.max_memory_allocated`` (CUDA).
 
@@ -35,7 +37,6 @@ import concurrent.futures as futures
 import multiprocessing
 import os
 import resource
-import statistics
 import sys
 import time
 from typing import Any, Callable
@@ -58,34 +59,31 @@ def _sync(device: th.device) -> None:
         th.cuda.synchronize(device)
 
 
-def median_time(fn: Callable[[], Any], device: th.device, repeats: int, warmup: int = 3) -> float:
-    """Median wall time of ``fn()`` in seconds, after ``warmup`` calls."""
-    for _ in range(warmup):
-        fn()
+def best_times(fns: dict[str, Callable[[], Any]], device: th.device, repeats: int, warmup: int = 2) -> dict[str, float]:
+    """Fastest wall time (seconds) of each of ``fns``, called in turn ``repeats`` times after warm-up.
+
+    This machine's speed drifts by tens of percent while other work shares its cores; the turns
+    expose every function to the same spells of load, and the fastest call of each is its least
+    disturbed one, so that ratios between them (update / matmul, variant / shipped) hold.
+    """
+    for fn in fns.values():
+        for _ in range(warmup):
+            fn()
     _sync(device)
-    times = []
+    best = {name: float("inf") for name in fns}
     for _ in range(repeats):
-        start = time.perf_counter()
-        fn()
-        _sync(device)
-        times.append(time.perf_counter() - start)
-    return statistics.median(times)
+        for name, fn in fns.items():
+            start = time.perf_counter()
+            fn()
+            _sync(device)
+            best[name] = min(best[name], time.perf_counter() - start)
+    return best
 
 
-def matmul_rate(n: int, device: th.device, repeats: int = 10) -> float:
-    """FLOP/s of an ``n x n`` by ``n x n`` float32 matmul on ``device`` (best of ``repeats``)."""
-    a, b = th.randn(n, n, device=device), th.randn(n, n, device=device)
-    out = th.empty(n, n, device=device)
-    best = float("inf")
-    for _ in range(3):
-        th.mm(a, b, out=out)
-    _sync(device)
-    for _ in range(repeats):
-        start = time.perf_counter()
-        th.mm(a, b, out=out)
-        _sync(device)
-        best = min(best, time.perf_counter() - start)
-    return 2 * n**3 / best
+def matmul(n: int, device: th.device) -> Callable[[], Any]:
+    """One ``n x n`` by ``n x n`` float32 matmul (``2 n^3`` FLOP), into a preallocated output."""
+    a, b, out = th.randn(n, n, device=device), th.randn(n, n, device=device), th.empty(n, n, device=device)
+    return lambda: th.mm(a, b, out=out)
 
 
 def count_flops(fn: Callable[[], Any]) -> int:
@@ -123,15 +121,36 @@ def build(method: str, hidden: int, batch: int, device: str, fill: int, buffer_s
     return model
 
 
-def env_step_time(model: Any, steps: int) -> float:
-    """Seconds per step of the model's VecEnv (wrappers included) with random actions."""
-    env = model.env
-    env.reset()
-    actions = np.stack([env.action_space.sample() for _ in range(steps)])[:, None]
-    start = time.perf_counter()
-    for action in actions:
-        env.step(action)
-    return (time.perf_counter() - start) / steps
+def timed_learn(model: Any, steps: int, device: th.device) -> tuple[float, float, float]:
+    """``learn(steps)`` with its updates and env steps timed inside it: ``(total, train, env)`` seconds.
+
+    ``train`` is the time in ``model.train`` (sampling, reward module, critic, actor, target), ``env``
+    the time in the VecEnv's ``step`` (the env, skill wrapper and Monitor); the rest is SB3's loop
+    (action selection, buffer insertion, callbacks, logging).
+    """
+    spent = {"train": 0.0, "env": 0.0}
+
+    def timed(fn: Callable, key: str) -> Callable:
+        def wrapper(*args: Any, **kwargs: Any) -> Any:
+            start = time.perf_counter()
+            out = fn(*args, **kwargs)
+            _sync(device)
+            spent[key] += time.perf_counter() - start
+            return out
+
+        return wrapper
+
+    model.train = timed(model.train, "train")
+    model.env.step = timed(model.env.step, "env")
+    try:
+        model.env.reset()
+        start = time.perf_counter()
+        model.learn(steps, reset_num_timesteps=False)
+        _sync(device)
+        total = time.perf_counter() - start
+    finally:
+        del model.train, model.env.step  # the instance attributes: back to the methods
+    return total, spent["train"], spent["env"]
 
 
 def measure_method(method: str, size: str, device_name: str, repeats: int, learn_steps: int, threads: int) -> dict:
@@ -141,25 +160,19 @@ def measure_method(method: str, size: str, device_name: str, repeats: int, learn
     hidden, batch = SIZES[size]
     fill = max(2 * batch, 2000)
     model = build(method, hidden, batch, device_name, fill, buffer_size=fill + learn_steps + 1000)
-    update = median_time(lambda: model.train(1, batch), device, repeats)
+    best = best_times({"update": lambda: model.train(1, batch), "matmul": matmul(hidden, device)}, device, repeats)
     flops = count_flops(lambda: model.train(1, batch))
-    rate = matmul_rate(hidden, device)
-    t_env = env_step_time(model, 500)
-    model.env.reset()
-    start = time.perf_counter()
-    model.learn(learn_steps, reset_num_timesteps=False)
-    _sync(device)
-    learn_time = time.perf_counter() - start
-    expected = (learn_steps // model.train_freq.frequency) * update + learn_steps * t_env
+    rate = 2 * hidden**3 / best["matmul"]
+    total, train, env = timed_learn(model, learn_steps, device)
     return {
         "name": method,
         "size": size,
-        "update_ms": update * 1e3,
+        "update_ms": best["update"] * 1e3,
         "gflop": flops / 1e9,
         "bound_ms": flops / rate * 1e3,
         "rate": rate,
-        "steps_per_s": learn_steps / learn_time,
-        "loop_pct": 100 * (learn_time / expected - 1),
+        "steps_per_s": learn_steps / total,
+        "loop_pct": 100 * (total - train - env) / (train + env),
         "peak_mib": peak_memory_mib(device),
     }
 
@@ -262,13 +275,13 @@ def measure_plain_cic(size: str, device_name: str, repeats: int, threads: int) -
         idx = th.randint(capacity, (batch,), device=device)
         agent.update(obs[idx], actions[idx], next_obs[idx], discounts[idx])
 
-    update = median_time(step, device, repeats)
+    best = best_times({"update": step, "matmul": matmul(hidden, device)}, device, repeats)
     flops = count_flops(step)
-    rate = matmul_rate(hidden, device)
+    rate = 2 * hidden**3 / best["matmul"]
     return {
         "name": "cic (plain torch)",
         "size": size,
-        "update_ms": update * 1e3,
+        "update_ms": best["update"] * 1e3,
         "gflop": flops / 1e9,
         "bound_ms": flops / rate * 1e3,
         "rate": rate,
@@ -281,7 +294,9 @@ def measure_plain_cic(size: str, device_name: str, repeats: int, threads: int) -
 # ----------------------------------------------------------------------------------------------
 # ablations: each speed change of the package undone
 def measure_ablations(size: str, device_name: str, repeats: int, threads: int) -> list[tuple[str, float]]:
-    """CIC update time (ms) as shipped and with each speed change undone; kNN reward time."""
+    """CIC update time (ms) as shipped and with each speed change undone (in turns); kNN reward time."""
+    from contextlib import contextmanager
+
     from stable_baselines3.common.utils import polyak_update
 
     from sb3_cic.rewards.base import RewardModule
@@ -292,41 +307,66 @@ def measure_ablations(size: str, device_name: str, repeats: int, threads: int) -
     hidden, batch = SIZES[size]
     model = build("cic", hidden, batch, device_name, fill=max(2 * batch, 2000), buffer_size=10_000)
     module = model.reward_module
-    rows = [("CIC update as shipped", median_time(lambda: model.train(1, batch), device, repeats))]
 
-    # 1. reward and discriminator update with separate state_net passes
-    fused = module.update_and_reward
-    module.update_and_reward = lambda data: RewardModule.update_and_reward(module, data)
-    rows.append(("  reward not fused with the discriminator update", median_time(lambda: model.train(1, batch), device, repeats)))
-    module.update_and_reward = fused
+    @contextmanager
+    def unfused_reward():  # reward and discriminator update with separate state_net passes
+        module.update_and_reward = lambda data: RewardModule.update_and_reward(module, data)
+        yield
+        del module.update_and_reward
 
-    # 2. critic weight gradients computed during the actor step
-    model.freeze_critic_in_actor_step = False
-    rows.append(("  critic weight gradients in the actor step", median_time(lambda: model.train(1, batch), device, repeats)))
-    model.freeze_critic_in_actor_step = True
+    @contextmanager
+    def critic_weight_gradients():  # critic weight gradients computed during the actor step
+        model.freeze_critic_in_actor_step = False
+        yield
+        model.freeze_critic_in_actor_step = True
 
-    # 3. SB3's polyak_update (a Python loop over parameters) instead of one foreach lerp
-    foreach_lerp = th._foreach_lerp_
-
-    def polyak(targets: list, sources: list, tau: float) -> None:
-        polyak_update(sources, targets, tau)
-
-    th._foreach_lerp_ = polyak  # type: ignore[assignment]
-    try:
-        rows.append(("  polyak_update loop for the target critic", median_time(lambda: model.train(1, batch), device, repeats)))
-    finally:
+    @contextmanager
+    def polyak_loop():  # SB3's polyak_update (a Python loop over parameters) instead of one foreach lerp
+        foreach_lerp = th._foreach_lerp_
+        th._foreach_lerp_ = lambda targets, sources, tau: polyak_update(sources, targets, tau)
+        yield
         th._foreach_lerp_ = foreach_lerp
 
-    # 4. the kNN reward of one batch (state_net embedding size 64)
+    owners = [model.actor, model.critic, module]
+    per_tensor = [th.optim.Adam(o.optimizer.param_groups[0]["params"], lr=1e-4, foreach=False) for o in owners]
+
+    @contextmanager
+    def per_tensor_adam():  # torch's per-tensor Adam (its CPU default) instead of the fused one
+        fused = [o.optimizer for o in owners]
+        for owner, optimizer in zip(owners, per_tensor):
+            owner.optimizer = optimizer
+        yield
+        for owner, optimizer in zip(owners, fused):
+            owner.optimizer = optimizer
+
+    def under(change: Callable | None) -> Callable[[], Any]:
+        def run() -> None:
+            if change is None:
+                model.train(1, batch)
+                return
+            with change():
+                model.train(1, batch)
+
+        return run
+
+    variants = {
+        "CIC update as shipped": under(None),
+        "  reward not fused with the discriminator update": under(unfused_reward),
+        "  critic weight gradients in the actor step": under(critic_weight_gradients),
+        "  polyak_update loop for the target critic": under(polyak_loop),
+        "  per-tensor Adam instead of fused Adam": under(per_tensor_adam),
+    }
+    rows = list(best_times(variants, device, repeats).items())
+
     particle = ParticleEntropy().to(device)
     embedding = th.randn(batch, 64, device=device)
-    rows.append((f"kNN particle reward of a {batch} batch", median_time(lambda: particle(embedding), device, 5 * repeats)))
-    rows.append((
-        f"  same with B x B x D broadcast differences",
-        median_time(
-            lambda: (embedding[:, None] - embedding[None]).norm(dim=-1).topk(12, dim=1, largest=False), device, repeats
-        ),
-    ))
+    knn = {
+        f"kNN particle reward of a {batch} batch (matrix products + topk)": lambda: particle(embedding),
+        "  same with B x B x D broadcast differences": lambda: (embedding[:, None] - embedding[None])
+        .norm(dim=-1)
+        .topk(12, dim=1, largest=False),
+    }
+    rows += list(best_times(knn, device, 5 * repeats).items())
     return [(name, seconds * 1e3) for name, seconds in rows]
 
 
@@ -342,7 +382,7 @@ def main() -> None:
     parser.add_argument("--methods", nargs="+", default=METHODS, choices=METHODS)
     parser.add_argument("--sizes", nargs="+", default=["full", "small"], choices=list(SIZES))
     parser.add_argument("--device", default="cpu")
-    parser.add_argument("--repeats", type=int, default=10, help="timed updates per row (median)")
+    parser.add_argument("--repeats", type=int, default=10, help="timed updates per row (the fastest counts)")
     parser.add_argument("--learn-steps", type=int, default=200, help="env steps of the timed learn()")
     parser.add_argument("--threads", type=int, default=th.get_num_threads())
     parser.add_argument("--no-plain", action="store_true", help="skip the plain-PyTorch CIC")
@@ -369,7 +409,7 @@ def main() -> None:
             )
     if args.ablations:
         for size in args.sizes:
-            print(f"\nCIC speed changes undone ({size}: hidden {SIZES[size][0]}, batch {SIZES[size][1]}), median ms")
+            print(f"\nCIC speed changes undone ({size}: hidden {SIZES[size][0]}, batch {SIZES[size][1]}), fastest ms in turns")
             for name, ms in _in_fresh_process(measure_ablations, size, args.device, args.repeats, args.threads):
                 print(f"{name:<55}{ms:>10.2f}")
 
