@@ -44,7 +44,6 @@ from typing import Any, Callable
 os.environ.setdefault("MUJOCO_GL", "disable")
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-import numpy as np  # noqa: E402
 import torch as th  # noqa: E402
 import torch.nn.functional as F  # noqa: E402
 from torch import nn  # noqa: E402
@@ -143,7 +142,6 @@ def timed_learn(model: Any, steps: int, device: th.device) -> tuple[float, float
     model.train = timed(model.train, "train")
     model.env.step = timed(model.env.step, "env")
     try:
-        model.env.reset()
         start = time.perf_counter()
         model.learn(steps, reset_num_timesteps=False)
         _sync(device)
