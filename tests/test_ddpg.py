@@ -41,6 +41,15 @@ def test_policy_layers_match_spec():
     assert model.exploration_clip == 0.3
 
 
+def test_training_mode_of_actor_and_critic(tiny):
+    policy = CIC("MlpPolicy", "URLB/walker-v0", **tiny).policy
+    for mode in (True, False, True):
+        policy.set_training_mode(mode)
+        assert policy.training is mode
+        assert all(m.training is mode for m in (*policy.actor.modules(), *policy.critic.modules()))
+        assert not any(m.training for m in policy.critic_target.modules())  # always in evaluation mode
+
+
 def test_nstep_target_on_hand_filled_buffer_with_skills():
     """Rewards 1..6; the first episode is truncated after 3 steps; skill = step index."""
     obs_space = spaces.Box(-np.inf, np.inf, (3,), np.float32)  # state 2 + skill 1
