@@ -58,12 +58,6 @@ def _actions(shape: tuple[int, ...], seed: int) -> np.ndarray:
     return np.random.default_rng(seed).uniform(-1.0, 1.0, size=(_ACTION_ROWS, *shape)).astype(np.float32)
 
 
-def _controls(env: dm_env.Environment, actions: np.ndarray) -> np.ndarray:
-    """The same actions in physics units (``mid + a * half_range``, float64), as the adapter sends them."""
-    spec = env.action_spec()
-    return actions.astype(np.float64) * (0.5 * (spec.maximum - spec.minimum)) + 0.5 * (spec.maximum + spec.minimum)
-
-
 def raw_runner(env: dm_env.Environment, actions: np.ndarray) -> Callable[[int], float]:
     """A timer of a dm_env environment stepped with the action table in physics units.
 
@@ -127,7 +121,8 @@ def benchmark(domain: str, task: str, steps: int, block: int) -> dict[str, float
     ours.unwrapped._random_state().seed(0)  # type: ignore[attr-defined]  # the seed of load(0)
     envs_ = {"raw": load(0), "shimmy": FlattenObservation(DmControlCompatibilityV0(load(0))), "ours": ours}
     actions = _actions(ours.action_space.shape, seed=0)
-    controls = _controls(envs_["raw"], actions)  # type: ignore[arg-type]
+    # the controls the adapter sends to the physics for those actions (computed before timing)
+    controls = np.stack([ours.unwrapped._control(a) for a in actions]).astype(np.float64)  # type: ignore[attr-defined]
     runners = {
         "raw": raw_runner(envs_["raw"], controls),  # type: ignore[arg-type]
         "shimmy": gym_runner(envs_["shimmy"], controls),  # type: ignore[arg-type]
