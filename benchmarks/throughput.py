@@ -12,22 +12,28 @@ one fresh process (so that its peak memory is its own) builds the model on ``URL
 * ``bound ms``: GFLOP divided by this machine's matmul rate (a ``n x n x n`` matmul, ``n`` = hidden
   size, fastest of the same turns, same threads): the time the update would take at the rate of
   its matrix products alone; ``x bound`` = update / bound;
-* ``learn steps/s``: env steps per second of ``learn()`` while training (one update every 2 steps),
-  and ``loop %``: the time of that ``learn()`` outside ``model.train`` and the VecEnv's ``step``
-  (both timed inside it; env steps include the skill wrapper and Monitor), over the time inside
-  them, i.e. what SB3's loop adds, action selection included;
+* ``learn steps/s``: env steps per second of ``learn()`` while training (one update every 2 steps);
+  ``2M h``: the hours a 2M-step pre-training (URLB's length) takes at that rate;
+* ``loop %``: the time of that ``learn()`` outside ``model.train`` and the VecEnv's ``step`` (both
+  timed inside it; env steps include the skill wrapper and Monitor), over the time inside them,
+  i.e. what SB3's loop adds, action selection included;
 * ``peak MiB``: the process's peak resident memory (CPU; the buffer holds only the steps taken)
   or ``torch.cuda.max_memory_allocated`` (CUDA).
 
 A plain-PyTorch CIC (the same networks, losses and reward on batches drawn from tensors, no SB3)
 runs beside them as ``cic (plain torch)``. ``--ablations`` times the CIC update with each speed
 change of the package undone (the "before" of each change), and the kNN reward of a batch.
+``--profile`` prints where the time of five CIC updates goes (``torch.profiler``, by operator, with the
+share of the matrix products). ``--compile MODE`` wraps the update's loss computations in ``torch.compile`` (``critic_loss``,
+``actor_loss`` and the reward module's networks; ``reduce-overhead`` adds CUDA graphs on a GPU) to
+compare with eager execution; the package itself runs eagerly.
 
 Usage::
 
     MUJOCO_GL=disable python benchmarks/throughput.py                      # every method, both sizes
     MUJOCO_GL=disable python benchmarks/throughput.py --methods cic ddpg --sizes full --ablations
     MUJOCO_GL=disable python benchmarks/throughput.py --device cuda         # where a GPU exists
+    MUJOCO_GL=disable python benchmarks/throughput.py --methods cic --sizes full --compile default
 """
 
 from __future__ import annotations
@@ -100,8 +106,14 @@ def peak_memory_mib(device: th.device) -> float:
 
 # ----------------------------------------------------------------------------------------------
 # the package's methods
-def build(method: str, hidden: int, batch: int, device: str, fill: int, buffer_size: int, seed: int = 0) -> Any:
-    """A model of ``method`` whose buffer holds ``fill`` random steps (no update taken yet)."""
+def build(
+    method: str, hidden: int, batch: int, device: str, fill: int, buffer_size: int, seed: int = 0, compile_mode: str = ""
+) -> Any:
+    """A model of ``method`` whose buffer holds ``fill`` random steps (no update taken yet).
+
+    With ``compile_mode``, ``critic_loss``, ``actor_loss`` and each network of the reward module go
+    through ``torch.compile(mode=compile_mode)`` (compiled during the warm-up updates).
+    """
     from sb3_cic.zoo import get_algo
 
     cls = get_algo(method)
@@ -116,6 +128,12 @@ def build(method: str, hidden: int, batch: int, device: str, fill: int, buffer_s
         device=device,
         seed=seed,
     )
+    if compile_mode:
+        model.critic_loss = th.compile(model.critic_loss, mode=compile_mode)
+        model.actor_loss = th.compile(model.actor_loss, mode=compile_mode)
+        for network in (model.reward_module.children() if model.reward_module is not None else ()):
+            if next(network.parameters(), None) is not None:
+                network.compile(mode=compile_mode)
     model.learn(fill)  # random actions only: SB3 trains once num_timesteps > learning_starts
     return model
 
@@ -151,19 +169,21 @@ def timed_learn(model: Any, steps: int, device: th.device) -> tuple[float, float
     return total, spent["train"], spent["env"]
 
 
-def measure_method(method: str, size: str, device_name: str, repeats: int, learn_steps: int, threads: int) -> dict:
+def measure_method(
+    method: str, size: str, device_name: str, repeats: int, learn_steps: int, threads: int, compile_mode: str = ""
+) -> dict:
     """One row of the table (run in a fresh process)."""
     th.set_num_threads(threads)
     device = th.device(device_name)
     hidden, batch = SIZES[size]
     fill = max(2 * batch, 2000)
-    model = build(method, hidden, batch, device_name, fill, buffer_size=fill + learn_steps + 1000)
+    model = build(method, hidden, batch, device_name, fill, fill + learn_steps + 1000, compile_mode=compile_mode)
     best = best_times({"update": lambda: model.train(1, batch), "matmul": matmul(hidden, device)}, device, repeats)
     flops = count_flops(lambda: model.train(1, batch))
     rate = 2 * hidden**3 / best["matmul"]
     total, train, env = timed_learn(model, learn_steps, device)
     return {
-        "name": method,
+        "name": method + (f" ({compile_mode})" if compile_mode else ""),
         "size": size,
         "update_ms": best["update"] * 1e3,
         "gflop": flops / 1e9,
@@ -368,6 +388,28 @@ def measure_ablations(size: str, device_name: str, repeats: int, threads: int) -
     return [(name, seconds * 1e3) for name, seconds in rows]
 
 
+def profile_cic(size: str, device_name: str, threads: int, updates: int = 5) -> str:
+    """``torch.profiler`` table of ``updates`` CIC updates by operator, and the matrix products' share."""
+    from torch.profiler import ProfilerActivity, profile
+
+    th.set_num_threads(threads)
+    hidden, batch = SIZES[size]
+    model = build("cic", hidden, batch, device_name, fill=max(2 * batch, 2000), buffer_size=10_000)
+    for _ in range(2):
+        model.train(1, batch)
+    activities = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if device_name.startswith("cuda") else [])
+    with profile(activities=activities) as prof:
+        for _ in range(updates):
+            model.train(1, batch)
+        _sync(th.device(device_name))
+    events = prof.key_averages()
+    key = "self_device_time_total" if device_name.startswith("cuda") else "self_cpu_time_total"
+    total = sum(getattr(e, key) for e in events)
+    products = sum(getattr(e, key) for e in events if e.key in ("aten::mm", "aten::addmm", "aten::bmm"))
+    table = events.table(sort_by=key, row_limit=20)
+    return f"{table}\nmatrix products (mm, addmm): {100 * products / total:.1f}% of the operators' own time\n"
+
+
 # ----------------------------------------------------------------------------------------------
 def _in_fresh_process(fn: Callable, *args: Any) -> Any:
     context = multiprocessing.get_context("spawn")
@@ -385,16 +427,28 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=th.get_num_threads())
     parser.add_argument("--no-plain", action="store_true", help="skip the plain-PyTorch CIC")
     parser.add_argument("--ablations", action="store_true", help="time the CIC update with each speed change undone")
+    parser.add_argument(
+        "--compile",
+        default="",
+        metavar="MODE",
+        help="also time each method with its losses and reward networks under torch.compile(mode=MODE)",
+    )
+    parser.add_argument("--profile", action="store_true", help="where the time of a CIC update goes, by operator")
     args = parser.parse_args()
 
     print(f"torch {th.__version__}, device {args.device}, {args.threads} threads")
     header = (
         f"{'method':<20}{'size':>6}{'update ms':>11}{'GFLOP':>8}{'GFLOP/s':>9}{'bound ms':>10}{'x bound':>9}"
-        f"{'learn steps/s':>15}{'loop %':>8}{'peak MiB':>10}"
+        f"{'learn steps/s':>15}{'2M h':>8}{'loop %':>8}{'peak MiB':>10}"
     )
     print(header + "\n" + "-" * len(header))
     for size in args.sizes:
-        jobs = [(measure_method, m, size, args.device, args.repeats, args.learn_steps, args.threads) for m in args.methods]
+        modes = ["", args.compile] if args.compile else [""]
+        jobs = [
+            (measure_method, m, size, args.device, args.repeats, args.learn_steps, args.threads, mode)
+            for m in args.methods
+            for mode in modes
+        ]
         if not args.no_plain:
             jobs.append((measure_plain_cic, size, args.device, args.repeats, args.threads))
         for fn, *fn_args in jobs:
@@ -402,6 +456,7 @@ def main() -> None:
             print(
                 f"{r['name']:<20}{r['size']:>6}{r['update_ms']:>11.2f}{r['gflop']:>8.2f}{r['rate'] / 1e9:>9.0f}"
                 f"{r['bound_ms']:>10.2f}{r['update_ms'] / r['bound_ms']:>8.2f}x{r['steps_per_s']:>15.1f}"
+                f"{2e6 / r['steps_per_s'] / 3600:>8.1f}"
                 f"{r['loop_pct']:>7.1f}%{r['peak_mib']:>10.0f}",
                 flush=True,
             )
@@ -410,6 +465,10 @@ def main() -> None:
             print(f"\nCIC speed changes undone ({size}: hidden {SIZES[size][0]}, batch {SIZES[size][1]}), fastest ms in turns")
             for name, ms in _in_fresh_process(measure_ablations, size, args.device, args.repeats, args.threads):
                 print(f"{name:<55}{ms:>10.2f}")
+    if args.profile:
+        for size in args.sizes:
+            print(f"\nCIC update by operator ({size}: hidden {SIZES[size][0]}, batch {SIZES[size][1]}), 5 updates")
+            print(_in_fresh_process(profile_cic, size, args.device, args.threads))
 
 
 if __name__ == "__main__":
