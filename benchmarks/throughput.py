@@ -23,10 +23,10 @@ one fresh process (so that its peak memory is its own) builds the model on ``URL
 A plain-PyTorch CIC (the same networks, losses and reward on batches drawn from tensors, no SB3)
 runs beside them as ``cic (plain torch)``. ``--ablations`` times the CIC update with each speed
 change of the package undone (the "before" of each change), and the kNN reward of a batch.
-``--profile`` prints where the time of five CIC updates goes (``torch.profiler``, by operator, with the
-share of the matrix products). ``--compile MODE`` wraps the update's loss computations in ``torch.compile`` (``critic_loss``,
-``actor_loss`` and the reward module's networks; ``reduce-overhead`` adds CUDA graphs on a GPU) to
-compare with eager execution; the package itself runs eagerly.
+``--profile`` prints where the time of five CIC updates goes (``torch.profiler``, by operator, with
+the share of the matrix products). ``--compile MODE`` adds rows with the update's loss computations
+under ``torch.compile`` (``critic_loss``, ``actor_loss`` and the reward module's networks;
+``reduce-overhead`` adds CUDA graphs on a GPU); the package itself runs eagerly.
 
 Usage::
 
@@ -405,7 +405,7 @@ def profile_cic(size: str, device_name: str, threads: int, updates: int = 5) -> 
     events = prof.key_averages()
     key = "self_device_time_total" if device_name.startswith("cuda") else "self_cpu_time_total"
     total = sum(getattr(e, key) for e in events)
-    products = sum(getattr(e, key) for e in events if e.key in ("aten::mm", "aten::addmm", "aten::bmm"))
+    products = sum(getattr(e, key) for e in events if e.key in ("aten::mm", "aten::addmm"))
     table = events.table(sort_by=key, row_limit=20)
     return f"{table}\nmatrix products (mm, addmm): {100 * products / total:.1f}% of the operators' own time\n"
 
