@@ -104,12 +104,25 @@ def peak_memory_mib(device: th.device) -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # KiB on Linux
 
 
+def time_against_bound(step: Callable[[], Any], hidden: int, device: th.device, repeats: int) -> dict[str, float]:
+    """The fastest time of ``step`` (one update) in turns with the matmul, its FLOP and its compute bound."""
+    best = best_times({"update": step, "matmul": matmul(hidden, device)}, device, repeats)
+    flops = count_flops(step)
+    rate = 2 * hidden**3 / best["matmul"]
+    return {"update_ms": best["update"] * 1e3, "gflop": flops / 1e9, "bound_ms": flops / rate * 1e3, "rate": rate}
+
+
 # ----------------------------------------------------------------------------------------------
 # the package's methods
+def fill_steps(batch: int) -> int:
+    """Random steps put in the buffer before the first timed update."""
+    return max(2 * batch, 2000)
+
+
 def build(
-    method: str, hidden: int, batch: int, device: str, fill: int, buffer_size: int, seed: int = 0, compile_mode: str = ""
+    method: str, hidden: int, batch: int, device: str, buffer_size: int = 10_000, seed: int = 0, compile_mode: str = ""
 ) -> Any:
-    """A model of ``method`` whose buffer holds ``fill`` random steps (no update taken yet).
+    """A model of ``method`` whose buffer holds :func:`fill_steps` random steps (no update taken yet).
 
     With ``compile_mode``, ``critic_loss``, ``actor_loss`` and each network of the reward module go
     through ``torch.compile(mode=compile_mode)`` (compiled during the warm-up updates).
@@ -124,7 +137,7 @@ def build(
         policy_kwargs={"hidden_dim": hidden},
         batch_size=batch,
         buffer_size=buffer_size,
-        learning_starts=fill,
+        learning_starts=fill_steps(batch),
         device=device,
         seed=seed,
     )
@@ -134,7 +147,7 @@ def build(
         for network in (model.reward_module.children() if model.reward_module is not None else ()):
             if next(network.parameters(), None) is not None:
                 network.compile(mode=compile_mode)
-    model.learn(fill)  # random actions only: SB3 trains once num_timesteps > learning_starts
+    model.learn(fill_steps(batch))  # random actions only: SB3 trains once num_timesteps > learning_starts
     return model
 
 
@@ -176,19 +189,13 @@ def measure_method(
     th.set_num_threads(threads)
     device = th.device(device_name)
     hidden, batch = SIZES[size]
-    fill = max(2 * batch, 2000)
-    model = build(method, hidden, batch, device_name, fill, fill + learn_steps + 1000, compile_mode=compile_mode)
-    best = best_times({"update": lambda: model.train(1, batch), "matmul": matmul(hidden, device)}, device, repeats)
-    flops = count_flops(lambda: model.train(1, batch))
-    rate = 2 * hidden**3 / best["matmul"]
+    model = build(method, hidden, batch, device_name, fill_steps(batch) + learn_steps + 1000, compile_mode=compile_mode)
+    timing = time_against_bound(lambda: model.train(1, batch), hidden, device, repeats)
     total, train, env = timed_learn(model, learn_steps, device)
     return {
         "name": method + (f" ({compile_mode})" if compile_mode else ""),
         "size": size,
-        "update_ms": best["update"] * 1e3,
-        "gflop": flops / 1e9,
-        "bound_ms": flops / rate * 1e3,
-        "rate": rate,
+        **timing,
         "steps_per_s": learn_steps / total,
         "loop_pct": 100 * (total - train - env) / (train + env),
         "peak_mib": peak_memory_mib(device),
@@ -293,16 +300,10 @@ def measure_plain_cic(size: str, device_name: str, repeats: int, threads: int) -
         idx = th.randint(capacity, (batch,), device=device)
         agent.update(obs[idx], actions[idx], next_obs[idx], discounts[idx])
 
-    best = best_times({"update": step, "matmul": matmul(hidden, device)}, device, repeats)
-    flops = count_flops(step)
-    rate = 2 * hidden**3 / best["matmul"]
     return {
         "name": "cic (plain torch)",
         "size": size,
-        "update_ms": best["update"] * 1e3,
-        "gflop": flops / 1e9,
-        "bound_ms": flops / rate * 1e3,
-        "rate": rate,
+        **time_against_bound(step, hidden, device, repeats),
         "steps_per_s": float("nan"),
         "loop_pct": float("nan"),
         "peak_mib": peak_memory_mib(device),
@@ -313,7 +314,7 @@ def measure_plain_cic(size: str, device_name: str, repeats: int, threads: int) -
 # ablations: each speed change of the package undone
 def measure_ablations(size: str, device_name: str, repeats: int, threads: int) -> list[tuple[str, float]]:
     """CIC update time (ms) as shipped and with each speed change undone (in turns); kNN reward time."""
-    from contextlib import contextmanager
+    from contextlib import contextmanager, nullcontext
 
     from stable_baselines3.common.utils import polyak_update
 
@@ -323,7 +324,7 @@ def measure_ablations(size: str, device_name: str, repeats: int, threads: int) -
     th.set_num_threads(threads)
     device = th.device(device_name)
     hidden, batch = SIZES[size]
-    model = build("cic", hidden, batch, device_name, fill=max(2 * batch, 2000), buffer_size=10_000)
+    model = build("cic", hidden, batch, device_name)
     module = model.reward_module
 
     @contextmanager
@@ -357,18 +358,15 @@ def measure_ablations(size: str, device_name: str, repeats: int, threads: int) -
         for owner, optimizer in zip(owners, fused):
             owner.optimizer = optimizer
 
-    def under(change: Callable | None) -> Callable[[], Any]:
+    def under(change: Callable) -> Callable[[], Any]:
         def run() -> None:
-            if change is None:
-                model.train(1, batch)
-                return
             with change():
                 model.train(1, batch)
 
         return run
 
     variants = {
-        "CIC update as shipped": under(None),
+        "CIC update as shipped": under(nullcontext),
         "  reward not fused with the discriminator update": under(unfused_reward),
         "  critic weight gradients in the actor step": under(critic_weight_gradients),
         "  polyak_update loop for the target critic": under(polyak_loop),
@@ -394,7 +392,7 @@ def profile_cic(size: str, device_name: str, threads: int, updates: int = 5) -> 
 
     th.set_num_threads(threads)
     hidden, batch = SIZES[size]
-    model = build("cic", hidden, batch, device_name, fill=max(2 * batch, 2000), buffer_size=10_000)
+    model = build("cic", hidden, batch, device_name)
     for _ in range(2):
         model.train(1, batch)
     activities = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if device_name.startswith("cuda") else [])
