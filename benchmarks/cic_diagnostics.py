@@ -147,7 +147,7 @@ def main() -> None:
 
     model = CIC.load(args.snapshot, device="cpu")
     untrained = CIC("MlpPolicy", args.domain_id, skill_dim=model.skill_dim, policy_kwargs=model.policy_kwargs,
-                    buffer_size=10, seed=args.seed, device="cpu")
+                    buffer_size=1024, seed=args.seed, device="cpu")
     print(f"# CIC diagnostics: {args.snapshot}\n")
     if args.tensorboard:
         print("## Pre-training curves (tensorboard)\n")

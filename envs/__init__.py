@@ -5,15 +5,37 @@
 * ``URLB/<domain>-v0``: the reward-free pre-training environment of a domain, on its primal task's
   physics (walker stand, quadruped walk, jaco reach_top_left); the reward is 0 and the task reward is
   reported in ``info["task_reward"]``.
+
+On Linux without a display (no ``DISPLAY`` or ``WAYLAND_DISPLAY``) and with ``MUJOCO_GL`` unset, importing
+this package sets ``MUJOCO_GL`` to the headless backend that can load (``egl``, else ``osmesa``, else
+``disable``) before dm_control is imported: dm_control would otherwise pick glfw, warn that there is no
+display, and fail to render.
 """
 
 from __future__ import annotations
 
-import gymnasium as gym
+import ctypes.util
+import os
+import sys
 
-from envs.dmc import DMCEnv
-from envs.skill_wrapper import SkillObservationWrapper
-from envs.tasks import DOMAIN_TASKS, URLB_TASKS, loader
+
+def _headless_gl_backend() -> str:
+    """The MuJoCo GL backend for a machine without a display: egl, else osmesa, else disable."""
+    for backend, library in (("egl", "EGL"), ("osmesa", "OSMesa")):
+        if ctypes.util.find_library(library):
+            return backend
+    return "disable"
+
+
+if "MUJOCO_GL" not in os.environ and sys.platform.startswith("linux"):
+    if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+        os.environ["MUJOCO_GL"] = _headless_gl_backend()
+
+import gymnasium as gym  # noqa: E402
+
+from envs.dmc import DMCEnv  # noqa: E402
+from envs.skill_wrapper import SkillObservationWrapper, VecSkillObservation  # noqa: E402
+from envs.tasks import DOMAIN_TASKS, URLB_TASKS, loader  # noqa: E402
 
 #: episode length of each domain (time limit / control timestep)
 EPISODE_LENGTH = {"walker": 1000, "quadruped": 1000, "jaco": 250, "point_mass": 1000}
@@ -58,4 +80,4 @@ def register_envs() -> None:
 
 register_envs()
 
-__all__ = ["DMCEnv", "SkillObservationWrapper", "URLB_TASKS", "DOMAIN_TASKS", "EPISODE_LENGTH", "make_dmc", "env_ids"]
+__all__ = ["DMCEnv", "SkillObservationWrapper", "VecSkillObservation", "URLB_TASKS", "DOMAIN_TASKS", "EPISODE_LENGTH", "make_dmc", "env_ids"]

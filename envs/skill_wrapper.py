@@ -1,12 +1,81 @@
-"""Observation wrapper that appends the current skill to the state: ``obs = [state, skill]``."""
+"""Observation wrappers that append the current skill to the state: ``obs = [state, skill]``.
+
+:class:`SkillObservationWrapper` wraps one env; :class:`VecSkillObservation` adds the skill to a VecEnv of
+plain envs. Both keep each env's skill in a :class:`SkillSchedule` and answer the same calls
+(``set_skill``, ``get_skill``, ``set_fixed``, ``fixed``...) through ``VecEnv.env_method``/``get_attr``.
+"""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
+from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
+from stable_baselines3.common.vec_env.base_vec_env import VecEnvObs, VecEnvStepReturn
+
+
+def skill_observation_space(space: spaces.Space, prior: Any) -> spaces.Box:
+    """The float32 Box of ``[state, skill]`` for a flat Box state space (``ValueError`` for any other space).
+
+    :param space: the state observation space
+    :param prior: the skill prior (``dim``, ``low``, ``high``)
+    """
+    if not isinstance(space, spaces.Box) or len(space.shape) != 1:
+        raise ValueError(f"a skill observation needs a flat Box observation space, got {space}")
+    return spaces.Box(
+        low=np.concatenate([space.low, np.full(prior.dim, prior.low)]).astype(np.float32),
+        high=np.concatenate([space.high, np.full(prior.dim, prior.high)]).astype(np.float32),
+        dtype=np.float32,
+    )
+
+
+class SkillSchedule:
+    """One env's current skill: resampled from ``prior`` at every reset and every ``resample_every``
+    steps, unless fixed.
+
+    :param prior: a skill prior (see :mod:`sb3_cic.skills`): ``dim``, ``low``, ``high``,
+        ``sample(rng)``, ``grid(n)`` and ``validate(z)``
+    :param resample_every: resample the skill every this many steps; ``None``: only at reset
+    """
+
+    def __init__(self, prior: Any, resample_every: int | None = 50) -> None:
+        if resample_every is not None and resample_every < 1:
+            raise ValueError(f"resample_every must be >= 1 or None, got {resample_every}")
+        self.prior = prior
+        self.resample_every = resample_every
+        self.fixed = False
+        self.rng = np.random.default_rng()
+        self.skill = prior.sample(self.rng)
+        self.steps = 0
+
+    def set(self, skill: np.ndarray, fixed: bool = True) -> None:
+        """Set the skill (``ValueError`` outside the prior's support); ``fixed`` keeps it."""
+        self.skill = self.prior.validate(skill).copy()
+        self.fixed = fixed
+        self.steps = 0
+
+    def reset(self, seed: int | None = None) -> None:
+        """A new episode: re-seed if ``seed`` is given, resample unless fixed."""
+        if seed is not None:
+            self.rng = np.random.default_rng(seed)
+        if not self.fixed:
+            self.skill = self.prior.sample(self.rng)
+        self.steps = 0
+
+    def step(self) -> None:
+        """One env step: resample when the period is over, unless fixed."""
+        self.steps += 1
+        if not self.fixed and self.resample_every is not None and self.steps % self.resample_every == 0:
+            self.skill = self.prior.sample(self.rng)
+
+    def observe(self, state: np.ndarray) -> np.ndarray:
+        """``[state, skill]`` as float32 (``state`` may carry leading batch dimensions)."""
+        state = np.asarray(state)
+        skill = self.skill if state.ndim == 1 else np.broadcast_to(self.skill, (*state.shape[:-1], self.skill.shape[0]))
+        return np.concatenate([state, skill], axis=-1).astype(np.float32, copy=False)
 
 
 class SkillObservationWrapper(gym.Wrapper):
@@ -24,29 +93,30 @@ class SkillObservationWrapper(gym.Wrapper):
 
     def __init__(self, env: gym.Env, prior: Any, resample_every: int | None = 50) -> None:
         super().__init__(env)
-        space = env.observation_space
-        if not isinstance(space, spaces.Box) or len(space.shape) != 1:
-            raise ValueError(f"SkillObservationWrapper needs a flat Box observation space, got {space}")
-        if resample_every is not None and resample_every < 1:
-            raise ValueError(f"resample_every must be >= 1 or None, got {resample_every}")
-        self.prior = prior
-        self.resample_every = resample_every
-        self.state_dim = int(space.shape[0])
+        self.observation_space = skill_observation_space(env.observation_space, prior)
+        self.schedule = SkillSchedule(prior, resample_every)
+        self.state_dim = int(env.observation_space.shape[0])
         self.skill_dim = int(prior.dim)
-        self.observation_space = spaces.Box(
-            low=np.concatenate([space.low, np.full(self.skill_dim, prior.low)]).astype(np.float32),
-            high=np.concatenate([space.high, np.full(self.skill_dim, prior.high)]).astype(np.float32),
-            dtype=np.float32,
-        )
-        self.fixed = False
-        self._rng = np.random.default_rng()
-        self._skill = prior.sample(self._rng)
-        self._steps = 0
+
+    @property
+    def prior(self) -> Any:
+        """The skill prior."""
+        return self.schedule.prior
+
+    @property
+    def resample_every(self) -> int | None:
+        """The resampling period (None: only at reset)."""
+        return self.schedule.resample_every
+
+    @property
+    def fixed(self) -> bool:
+        """Whether the skill is fixed (no resampling)."""
+        return self.schedule.fixed
 
     @property
     def skill(self) -> np.ndarray:
         """The current skill (a copy)."""
-        return self._skill.copy()
+        return self.schedule.skill.copy()
 
     def get_skill(self) -> np.ndarray:
         """Return the current skill (for ``VecEnv.env_method``)."""
@@ -58,30 +128,93 @@ class SkillObservationWrapper(gym.Wrapper):
         :param skill: the new skill; must be in the prior's support (else ``ValueError``)
         :param fixed: keep it until :meth:`set_fixed` (False) is called, instead of resampling
         """
-        self._skill = self.prior.validate(skill).copy()
-        self.fixed = fixed
-        self._steps = 0
+        self.schedule.set(skill, fixed)
 
     def set_fixed(self, fixed: bool) -> None:
         """Switch between a fixed skill (True) and resampling (False)."""
-        self.fixed = bool(fixed)
-
-    def _observation(self, state: np.ndarray) -> np.ndarray:
-        return np.concatenate([state, self._skill]).astype(np.float32, copy=False)
+        self.schedule.fixed = bool(fixed)
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
-        if seed is not None:
-            self._rng = np.random.default_rng(seed)
         state, info = self.env.reset(seed=seed, options=options)
-        if not self.fixed:
-            self._skill = self.prior.sample(self._rng)
-        self._steps = 0
-        return self._observation(state), info
+        self.schedule.reset(seed)
+        return self.schedule.observe(state), info
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
         state, reward, terminated, truncated, info = self.env.step(action)
-        info["skill"] = self._skill
-        self._steps += 1
-        if not self.fixed and self.resample_every is not None and self._steps % self.resample_every == 0:
-            self._skill = self.prior.sample(self._rng)
-        return self._observation(state), reward, terminated, truncated, info
+        info["skill"] = self.schedule.skill
+        self.schedule.step()
+        return self.schedule.observe(state), reward, terminated, truncated, info
+
+
+class VecSkillObservation(VecEnvWrapper):
+    """Append each env's current skill to the observations of a VecEnv of plain envs (SB3-style).
+
+    The same schedule as :class:`SkillObservationWrapper`, one per env, including the
+    ``terminal_observation`` of an ended episode (which keeps the skill it was reached with). It answers
+    the skill wrapper's calls through ``env_method`` (``set_skill``, ``get_skill``, ``set_fixed``) and
+    ``get_attr`` (``fixed``, ``skill``, ``skill_dim``, ``state_dim``, ``resample_every``, ``prior``), and
+    ``env_is_wrapped(SkillObservationWrapper)`` is True for every env: each behaves as if it were wrapped.
+
+    :param venv: VecEnv with a flat Box observation
+    :param prior: a skill prior
+    :param resample_every: resample the skill every this many steps; ``None``: only at reset
+    """
+
+    _METHODS = frozenset({"set_skill", "get_skill", "set_fixed"})
+    _ATTRS = frozenset({"fixed", "skill", "skill_dim", "state_dim", "resample_every", "prior"})
+
+    def __init__(self, venv: VecEnv, prior: Any, resample_every: int | None = 50) -> None:
+        super().__init__(venv, observation_space=skill_observation_space(venv.observation_space, prior))
+        self.schedules = [SkillSchedule(prior, resample_every) for _ in range(venv.num_envs)]
+        self.state_dim = int(venv.observation_space.shape[0])
+        self.skill_dim = int(prior.dim)
+        self._seed: int | None = None
+
+    def _observe(self, states: np.ndarray) -> np.ndarray:
+        skills = np.stack([schedule.skill for schedule in self.schedules])
+        return np.concatenate([states, skills], axis=1).astype(np.float32, copy=False)
+
+    def seed(self, seed: int | None = None) -> Sequence[None | int]:
+        self._seed = seed
+        return self.venv.seed(seed)
+
+    def reset(self) -> VecEnvObs:
+        states = self.venv.reset()
+        for i, schedule in enumerate(self.schedules):
+            schedule.reset(None if self._seed is None else self._seed + i)
+        self._seed = None
+        return self._observe(states)  # type: ignore[arg-type]
+
+    def step_wait(self) -> VecEnvStepReturn:
+        states, rewards, dones, infos = self.venv.step_wait()
+        for schedule, done, info in zip(self.schedules, dones, infos):
+            info["skill"] = schedule.skill
+            schedule.step()
+            if done:
+                if "terminal_observation" in info:
+                    info["terminal_observation"] = schedule.observe(info["terminal_observation"])
+                schedule.reset()
+        return self._observe(states), rewards, dones, infos  # type: ignore[arg-type]
+
+    def _indices(self, indices: None | int | Sequence[int]) -> list[int]:
+        if indices is None:
+            return list(range(self.num_envs))
+        return [indices] if isinstance(indices, int) else list(indices)
+
+    def env_method(self, method_name: str, *method_args: Any, indices: None | int | Sequence[int] = None, **method_kwargs: Any) -> list[Any]:
+        if method_name not in self._METHODS:
+            return self.venv.env_method(method_name, *method_args, indices=indices, **method_kwargs)
+        calls = {"set_skill": SkillSchedule.set, "get_skill": lambda s: s.skill.copy(), "set_fixed": lambda s, f: setattr(s, "fixed", bool(f))}
+        return [calls[method_name](self.schedules[i], *method_args, **method_kwargs) for i in self._indices(indices)]
+
+    def get_attr(self, attr_name: str, indices: None | int | Sequence[int] = None) -> list[Any]:
+        if attr_name not in self._ATTRS:
+            return self.venv.get_attr(attr_name, indices)
+        if attr_name in ("skill_dim", "state_dim"):
+            return [getattr(self, attr_name)] * len(self._indices(indices))
+        return [getattr(self.schedules[i], attr_name) for i in self._indices(indices)]
+
+    def env_is_wrapped(self, wrapper_class: type[gym.Wrapper], indices: None | int | Sequence[int] = None) -> list[bool]:
+        if wrapper_class is SkillObservationWrapper:
+            return [True] * len(self._indices(indices))
+        return self.venv.env_is_wrapped(wrapper_class, indices)

@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import Any, Callable
 
 import numpy as np
+from gymnasium import spaces
 from stable_baselines3.common.buffers import NStepReplayBuffer
 from stable_baselines3.common.type_aliases import ReplayBufferSamples
 from stable_baselines3.common.vec_env import VecNormalize
@@ -22,7 +23,12 @@ class URLBReplayBuffer(NStepReplayBuffer):
       the skill was resampled within the n steps.
     * ``relabel``: a hook installed by the algorithm in pre-training; it receives every sampled batch
       and returns it with the intrinsic reward in place of the stored reward. It is never pickled.
+    * Observations are stored as float32 whatever the Box's dtype (float64 for most Gymnasium MuJoCo
+      envs): the one cast of the training path (SB3 casts each batch in the networks), and half the memory.
 
+    :param buffer_size: capacity
+    :param observation_space: observation space (a flat Box)
+    :param action_space: action space
     :param args: see :class:`~stable_baselines3.common.buffers.NStepReplayBuffer`
     :param skill_dim: number of trailing observation entries that hold the skill (0: no skill)
     :param n_steps: n of the n-step return
@@ -30,8 +36,20 @@ class URLBReplayBuffer(NStepReplayBuffer):
     :param kwargs: see :class:`~stable_baselines3.common.buffers.NStepReplayBuffer`
     """
 
-    def __init__(self, *args: Any, skill_dim: int = 0, n_steps: int = 3, gamma: float = 0.99, **kwargs: Any) -> None:
-        super().__init__(*args, n_steps=n_steps, gamma=gamma, **kwargs)
+    def __init__(
+        self,
+        buffer_size: int,
+        observation_space: spaces.Space,
+        action_space: spaces.Space,
+        *args: Any,
+        skill_dim: int = 0,
+        n_steps: int = 3,
+        gamma: float = 0.99,
+        **kwargs: Any,
+    ) -> None:
+        if isinstance(observation_space, spaces.Box) and observation_space.dtype != np.float32:
+            observation_space = spaces.Box(-np.inf, np.inf, observation_space.shape, np.float32)
+        super().__init__(buffer_size, observation_space, action_space, *args, n_steps=n_steps, gamma=gamma, **kwargs)
         self.skill_dim = skill_dim
         self.relabel: Relabel | None = None
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import operator
+from functools import reduce
 from typing import Any, ClassVar, TypeVar
 
 import gymnasium as gym
@@ -11,15 +13,16 @@ import torch.nn.functional as F
 from gymnasium import spaces
 from stable_baselines3 import DDPG
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
-from stable_baselines3.common.noise import NormalActionNoise
+from stable_baselines3.common.noise import ActionNoise, NormalActionNoise
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.save_util import load_from_zip_file
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, ReplayBufferSamples, Schedule
-from stable_baselines3.common.vec_env import VecEnv
+from stable_baselines3.common.vec_env import VecEnv, VecNormalize
+from stable_baselines3.common.vec_env.base_vec_env import VecEnvWrapper
 
-from envs.skill_wrapper import SkillObservationWrapper
+from envs.skill_wrapper import SkillObservationWrapper, VecSkillObservation
 from sb3_cic.buffers import URLBReplayBuffer
-from sb3_cic.policies import URLBPolicy
+from sb3_cic.policies import URLBPolicy, hidden_dim_from_net_arch, min_q
 from sb3_cic.rewards.base import RewardModule
 from sb3_cic.skills import SkillPrior
 
@@ -34,12 +37,37 @@ def _find_skill_wrapper(env: gym.Env) -> SkillObservationWrapper | None:
     return None
 
 
+def _has_vec_normalize(env: VecEnv) -> bool:
+    while isinstance(env, VecEnvWrapper):
+        if isinstance(env, VecNormalize):
+            return True
+        env = env.venv
+    return False
+
+
+def check_range(name: str, value: Any, low: float, high: float = float("inf"), low_open: bool = False) -> None:
+    """Raise a ``ValueError`` naming ``name`` unless ``low <= value <= high`` (``low < value`` with ``low_open``).
+
+    :param name: argument name for the message
+    :param value: the value given
+    :param low: lower bound
+    :param high: upper bound
+    :param low_open: exclude ``low`` itself
+    """
+    number = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool) and not np.isnan(value)
+    if not number or not (value > low if low_open else value >= low) or value > high:
+        bounds = f"{'(' if low_open else '['}{low}, {high}]" if np.isfinite(high) else f"{'>' if low_open else '>='} {low}"
+        raise ValueError(f"{name} must be {'in ' if np.isfinite(high) else ''}{bounds}, got {value!r}")
+
+
 def prepare_env(env: GymEnv | str, prior: SkillPrior | None, resample_every: int | None = 50) -> GymEnv:
     """Make ``env`` (an id, an env or a VecEnv) ready for a URLB agent.
 
-    Checks that actions are continuous and observations flat states, and wraps the env with
-    :class:`~envs.SkillObservationWrapper` when the agent has a skill prior and the env is not
-    wrapped yet. A wrapper with another skill size, or a VecEnv without the wrapper, is a ``ValueError``.
+    Checks that actions are continuous and observations flat states, and adds the skill when the agent
+    has a skill prior and the env does not carry it yet: an env is wrapped with
+    :class:`~envs.SkillObservationWrapper`, a VecEnv of plain envs with :class:`~envs.VecSkillObservation`.
+    A wrapper with another skill size is a ``ValueError``, and so is a VecNormalize below the skill
+    (its statistics would have the state's size).
 
     :param env: environment id, environment or VecEnv
     :param prior: the agent's skill prior, or None
@@ -59,7 +87,12 @@ def prepare_env(env: GymEnv | str, prior: SkillPrior | None, resample_every: int
         return env
     if isinstance(env, VecEnv):
         if not all(env.env_is_wrapped(SkillObservationWrapper)):
-            raise ValueError("a VecEnv given to a skill-based agent must wrap each env in SkillObservationWrapper")
+            if _has_vec_normalize(env):
+                raise ValueError(
+                    "a skill-based agent cannot add its skill above VecNormalize: wrap each env in "
+                    "SkillObservationWrapper first (make_vec_env(..., wrapper_class=...)), then VecNormalize"
+                )
+            return VecSkillObservation(env, prior, resample_every=resample_every)
         dims = set(env.get_attr("skill_dim"))
         if dims != {prior.dim}:
             raise ValueError(f"the env's SkillObservationWrapper has skill_dim {dims}, the agent's prior {prior.dim}")
@@ -104,6 +137,13 @@ class URLBDDPG(DDPG):
     :param gamma: discount factor
     :param train_freq: env steps between updates
     :param gradient_steps: updates per ``train_freq``
+    :param action_noise: exploration noise of the actions taken in the env (SB3's ``ActionNoise``); default:
+        URLB's ``N(0, exploration_std^2)`` (:class:`~stable_baselines3.common.noise.NormalActionNoise`). It
+        replaces that noise in acting only: the target action and the actor loss keep URLB's clipped
+        ``exploration_std`` noise
+    :param replay_buffer_class: a subclass of :class:`~sb3_cic.buffers.URLBReplayBuffer` (the default)
+    :param optimize_memory_usage: not supported (``ValueError`` if True): URLB's n-step buffer keeps next
+        observations; lower ``buffer_size`` to save memory
     :param n_steps: n of the n-step return
     :param exploration_std: std of the gaussian exploration noise
     :param exploration_clip: clip of that noise for the target action and the actor loss
@@ -114,7 +154,7 @@ class URLBDDPG(DDPG):
     :param replay_buffer_kwargs: extra arguments of :class:`~sb3_cic.buffers.URLBReplayBuffer`
     :param stats_window_size: episodes averaged in the rollout logs
     :param tensorboard_log: tensorboard log folder
-    :param policy_kwargs: policy arguments (``hidden_dim``)
+    :param policy_kwargs: policy arguments: ``hidden_dim`` (or SB3's ``net_arch=[h, h]``), ``n_critics`` (2)
     :param verbose: verbosity
     :param seed: random seed
     :param device: torch device
@@ -140,13 +180,16 @@ class URLBDDPG(DDPG):
         gamma: float = 0.99,
         train_freq: int = 2,
         gradient_steps: int = 1,
+        action_noise: ActionNoise | None = None,
+        replay_buffer_class: type[URLBReplayBuffer] | None = None,
+        replay_buffer_kwargs: dict[str, Any] | None = None,
+        optimize_memory_usage: bool = False,
         n_steps: int = 3,
         exploration_std: float = 0.2,
         exploration_clip: float = 0.3,
         reward_free: bool | None = None,
         skill_prior: SkillPrior | None = None,
         skill_resample_every: int | None = 50,
-        replay_buffer_kwargs: dict[str, Any] | None = None,
         stats_window_size: int = 100,
         tensorboard_log: str | None = None,
         policy_kwargs: dict[str, Any] | None = None,
@@ -155,6 +198,14 @@ class URLBDDPG(DDPG):
         device: th.device | str = "auto",
         _init_setup_model: bool = True,
     ) -> None:
+        replay_buffer_class = replay_buffer_class or URLBReplayBuffer
+        self._check_arguments(locals())
+        policy_kwargs = dict(policy_kwargs or {})
+        if "net_arch" in policy_kwargs:  # SB3's form of the width
+            width = hidden_dim_from_net_arch(policy_kwargs.pop("net_arch"))
+            if policy_kwargs.setdefault("hidden_dim", width) != width:
+                raise ValueError(f"net_arch says width {width}, hidden_dim {policy_kwargs['hidden_dim']}: give one of them")
+        policy_kwargs.setdefault("n_critics", 2)  # SB3's DDPG would set 1
         if _init_setup_model:  # ``load`` prepares the env itself, with the saved prior
             env = prepare_env(env, skill_prior, skill_resample_every)
         super().__init__(
@@ -168,7 +219,8 @@ class URLBDDPG(DDPG):
             gamma=gamma,
             train_freq=train_freq,
             gradient_steps=gradient_steps,
-            replay_buffer_class=URLBReplayBuffer,
+            action_noise=action_noise,
+            replay_buffer_class=replay_buffer_class,
             replay_buffer_kwargs=replay_buffer_kwargs,
             tensorboard_log=tensorboard_log,
             policy_kwargs=policy_kwargs,
@@ -177,7 +229,6 @@ class URLBDDPG(DDPG):
             device=device,
             _init_setup_model=False,
         )
-        self.policy_kwargs.pop("n_critics", None)
         self.n_steps = n_steps
         self._stats_window_size = stats_window_size
         self.exploration_std = exploration_std
@@ -190,8 +241,42 @@ class URLBDDPG(DDPG):
         #: the skill chosen for fine-tuning, once a skill-selection callback has chosen it
         self.finetune_skill: np.ndarray | None = None
         self.reward_module: RewardModule | None = None
+        #: the skill last given to :meth:`set_skill` (appended to plain observations when there is no env)
+        self.skill: np.ndarray | None = None
         if _init_setup_model:
             self._setup_model()
+
+    @staticmethod
+    def _check_arguments(args: dict[str, Any]) -> None:
+        """``ValueError`` naming the first argument out of its range (before anything is built)."""
+        if args["optimize_memory_usage"]:
+            raise ValueError(
+                "optimize_memory_usage is not supported: URLB's n-step replay buffer keeps next observations; "
+                "lower buffer_size to save memory"
+            )
+        buffer_class = args["replay_buffer_class"]
+        if not (isinstance(buffer_class, type) and issubclass(buffer_class, URLBReplayBuffer)):
+            raise ValueError(
+                f"replay_buffer_class must subclass sb3_cic.URLBReplayBuffer (n-step returns, skill-consistent next "
+                f"observations, intrinsic-reward relabelling), got {buffer_class!r}; HerReplayBuffer needs goal-conditioned "
+                "Dict observations, which URLB agents do not take"
+            )
+        learning_rate = args["learning_rate"]
+        if not callable(learning_rate):
+            check_range("learning_rate", learning_rate, 0.0, low_open=True)
+        check_range("buffer_size", args["buffer_size"], 1)
+        check_range("batch_size", args["batch_size"], 1, args["buffer_size"])
+        check_range("learning_starts", args["learning_starts"], 0)
+        check_range("tau", args["tau"], 0.0, 1.0)
+        check_range("gamma", args["gamma"], 0.0, 1.0)
+        if args["gradient_steps"] != -1:
+            check_range("gradient_steps", args["gradient_steps"], 0)
+        train_freq = args["train_freq"]
+        check_range("train_freq", train_freq[0] if isinstance(train_freq, tuple) else train_freq, 1)
+        check_range("n_steps", args["n_steps"], 1)
+        check_range("exploration_std", args["exploration_std"], 0.0)
+        check_range("exploration_clip", args["exploration_clip"], 0.0)
+        check_range("stats_window_size", args["stats_window_size"], 1)
 
     # construction -----------------------------------------------------------------------------
     @property
@@ -205,6 +290,11 @@ class URLBDDPG(DDPG):
         return int(self.observation_space.shape[0]) - self.skill_dim
 
     @property
+    def action_dim(self) -> int:
+        """Number of action entries (a multi-dimensional Box action is flattened)."""
+        return int(np.prod(self.action_space.shape))
+
+    @property
     def hidden_dim(self) -> int:
         """Hidden width of actor and critic."""
         return int(self.policy_kwargs.get("hidden_dim", 1024))
@@ -215,8 +305,8 @@ class URLBDDPG(DDPG):
 
     def _setup_model(self) -> None:
         if self.action_noise is None:
-            act_dim = int(np.prod(self.action_space.shape))
-            self.action_noise = NormalActionNoise(np.zeros(act_dim), self.exploration_std * np.ones(act_dim))
+            shape = self.action_space.shape
+            self.action_noise = NormalActionNoise(np.zeros(shape), np.full(shape, self.exploration_std))
         self.replay_buffer_kwargs = {
             **self.replay_buffer_kwargs,
             "n_steps": self.n_steps,
@@ -247,7 +337,7 @@ class URLBDDPG(DDPG):
 
     # skills -------------------------------------------------------------------------------------
     def set_skill(self, skill: np.ndarray, fixed: bool = True) -> None:
-        """Set the skill of every training env (and of the pending observation).
+        """Set the skill of every training env (and of the pending observation) and of :meth:`predict`.
 
         :param skill: a skill of the prior's support
         :param fixed: keep it fixed instead of resampling
@@ -255,10 +345,46 @@ class URLBDDPG(DDPG):
         if self.skill_prior is None:
             raise ValueError(f"{type(self).__name__} has no skill")
         z = self.skill_prior.validate(skill)
-        assert self.env is not None
-        self.env.env_method("set_skill", z, fixed)
+        self.skill = z.copy()
+        if self.env is not None:
+            self.env.env_method("set_skill", z, fixed)
         if self._last_obs is not None:
             self._last_obs[:, -self.skill_dim :] = z  # type: ignore[index]
+
+    def current_skill(self) -> np.ndarray:
+        """The skill the model acts with on a plain observation: the fine-tuning skill once chosen, else the
+        first training env's current skill, else the last :meth:`set_skill`; ``ValueError`` if none."""
+        if self.skill_prior is None:
+            raise ValueError(f"{type(self).__name__} has no skill")
+        if self.finetune_skill is not None:
+            return self.finetune_skill
+        if self.env is not None:
+            return np.asarray(self.env.env_method("get_skill", indices=[0])[0], dtype=np.float32)
+        if self.skill is None:
+            raise ValueError(
+                f"{type(self).__name__} has no current skill to append to a state observation "
+                f"(no env): call model.set_skill(z) first, or pass [state, skill] observations"
+            )
+        return self.skill
+
+    def predict(
+        self,
+        observation: np.ndarray | dict[str, np.ndarray],
+        state: tuple[np.ndarray, ...] | None = None,
+        episode_start: np.ndarray | None = None,
+        deterministic: bool = False,
+    ) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None]:
+        """The action for ``observation`` (see SB3's ``predict``).
+
+        A skill-based model also takes plain state observations (as a plain env or a VecEnv of plain envs
+        returns them, for example in ``evaluate_policy`` or SB3's ``EvalCallback``): it appends
+        :meth:`current_skill`. ``[state, skill]`` observations are used as they are.
+        """
+        if self.skill_prior is not None and isinstance(observation, np.ndarray) and observation.ndim > 0:
+            if observation.shape[-1] == self.state_dim:
+                skill = np.broadcast_to(self.current_skill(), (*observation.shape[:-1], self.skill_dim))
+                observation = np.concatenate([observation, skill], axis=-1)
+        return self.policy.predict(observation, state, episode_start, deterministic)
 
     def make_finetune_callback(self) -> BaseCallback | None:
         """The skill-selection callback :meth:`learn` adds when fine-tuning a skill-based method."""
@@ -283,15 +409,15 @@ class URLBDDPG(DDPG):
         """Twin-critic loss ``MSE(Q1, y) + MSE(Q2, y)`` and the mean target ``y``."""
         with th.no_grad():
             next_actions = self._noisy(self.actor(data.next_observations))
-            next_q = th.min(*self.critic_target(data.next_observations, next_actions))
+            next_q = min_q(self.critic_target(data.next_observations, next_actions))
             discounts = data.discounts if data.discounts is not None else self.gamma
             target_q = data.rewards + (1.0 - data.dones) * discounts * next_q
-        q1, q2 = self.critic(data.observations, data.actions)
-        return F.mse_loss(q1, target_q) + F.mse_loss(q2, target_q), target_q.mean()
+        losses = [F.mse_loss(q, target_q) for q in self.critic(data.observations, data.actions)]
+        return reduce(operator.add, losses), target_q.mean()
 
     def actor_loss(self, obs: th.Tensor) -> th.Tensor:
         """``-min(Q1, Q2)`` at the noisy, clipped action of the actor."""
-        return -th.min(*self.critic(obs, self._noisy(self.actor(obs)))).mean()
+        return -min_q(self.critic(obs, self._noisy(self.actor(obs)))).mean()
 
     def _update(self, data: ReplayBufferSamples) -> dict[str, th.Tensor]:
         critic_loss, target_q = self.critic_loss(data)
@@ -349,6 +475,7 @@ class URLBDDPG(DDPG):
         When fine-tuning a skill-based method, the method's skill-selection callback
         (:meth:`make_finetune_callback`) runs first unless ``callback`` already holds one.
         """
+        check_range("total_timesteps", total_timesteps, 0)
         return super().learn(
             total_timesteps,
             callback=self._with_finetune_callback(callback),

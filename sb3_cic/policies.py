@@ -1,18 +1,24 @@
 """URLB actor and twin critic for state observations (``"MlpPolicy"``).
 
 Actor: ``Linear(obs, h) -> LayerNorm -> Tanh -> Linear(h, h) -> ReLU -> Linear(h, act) -> tanh``.
-Critic: a shared trunk ``Linear(obs + act, h) -> LayerNorm -> Tanh`` and two heads
+Critic: a shared trunk ``Linear(obs + act, h) -> LayerNorm -> Tanh`` and ``n_critics`` heads (URLB: 2)
 ``Linear(h, h) -> ReLU -> Linear(h, 1)``. Linear layers use orthogonal init and zero bias.
-The observation is the flat ``[state, skill]`` vector.
+The observation is the flat ``[state, skill]`` vector; a multi-dimensional Box action is flattened
+(``act`` is its number of entries) and reshaped by SB3's ``predict``.
+
+The one width ``h`` is ``hidden_dim`` (URLB: 1024). SB3's ``net_arch`` is accepted where it says the
+same: ``[h, h]`` or ``dict(pi=[h, h], qf=[h, h])`` (see :func:`hidden_dim_from_net_arch`).
 """
 
 from __future__ import annotations
 
+from functools import reduce
 from typing import Any
 
 import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.policies import BaseModel, BasePolicy
+from stable_baselines3.common.preprocessing import get_action_dim
 from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 from stable_baselines3.td3.policies import TD3Policy
 from torch import nn
@@ -21,6 +27,36 @@ from torch import nn
 #: Adam's fused implementation by default: the same update as the per-tensor one (to float rounding),
 #: one kernel over all parameters, many times faster on CPU (see benchmarks/throughput.py)
 ADAM_KWARGS: dict[str, Any] = {"fused": True}
+
+
+def hidden_dim_from_net_arch(net_arch: list[int] | dict[str, list[int]]) -> int:
+    """The URLB width that SB3's ``net_arch`` describes, or a ``ValueError`` naming ``hidden_dim``.
+
+    URLB's actor and critic have two hidden layers of one width ``h``: ``[h, h]`` and
+    ``dict(pi=[h, h], qf=[h, h])`` say that; any other shape cannot be built.
+
+    :param net_arch: SB3's ``net_arch`` (list of widths, or dict with ``pi`` and ``qf``)
+    """
+    layers = [*net_arch.get("pi", []), *net_arch.get("qf", [])] if isinstance(net_arch, dict) else list(net_arch)
+    extra = set(net_arch) - {"pi", "qf"} if isinstance(net_arch, dict) else set()
+    if extra or len(set(layers)) != 1 or any(not isinstance(h, int) or h < 1 for h in layers):
+        raise ValueError(
+            f"net_arch={net_arch!r} cannot be built: URLB networks have hidden layers of one width; "
+            "give policy_kwargs=dict(hidden_dim=h) (or net_arch=[h, h])"
+        )
+    return int(layers[0])
+
+
+def check_hidden_dim(hidden_dim: int, name: str = "hidden_dim") -> int:
+    """Return ``hidden_dim`` or raise a ``ValueError`` naming the argument when it is not a positive int."""
+    if isinstance(hidden_dim, bool) or not isinstance(hidden_dim, int) or hidden_dim < 1:
+        raise ValueError(f"{name} must be an int >= 1, got {hidden_dim!r}")
+    return hidden_dim
+
+
+def min_q(qs: tuple[th.Tensor, ...]) -> th.Tensor:
+    """Element-wise minimum over the critic heads' outputs (``th.minimum(q1, q2)`` for the twin critic)."""
+    return reduce(th.minimum, qs)
 
 
 def orthogonal_init(module: nn.Module) -> None:
@@ -39,10 +75,12 @@ class URLBActor(BasePolicy):
     :param hidden_dim: width of the hidden layers
     """
 
-    def __init__(self, observation_space: spaces.Box, action_space: spaces.Box, hidden_dim: int = 1024) -> None:
-        super().__init__(observation_space, action_space, squash_output=True)
-        self.hidden_dim = hidden_dim
-        obs_dim, act_dim = observation_space.shape[0], action_space.shape[0]
+    def __init__(
+        self, observation_space: spaces.Box, action_space: spaces.Box, hidden_dim: int = 1024, normalize_images: bool = True
+    ) -> None:
+        super().__init__(observation_space, action_space, squash_output=True, normalize_images=normalize_images)
+        self.hidden_dim = check_hidden_dim(hidden_dim)
+        obs_dim, act_dim = observation_space.shape[0], get_action_dim(action_space)
         self.trunk = nn.Sequential(nn.Linear(obs_dim, hidden_dim), nn.LayerNorm(hidden_dim), nn.Tanh())
         self.policy = nn.Sequential(
             nn.Linear(hidden_dim, hidden_dim), nn.ReLU(inplace=True), nn.Linear(hidden_dim, act_dim), nn.Tanh()
@@ -58,44 +96,60 @@ class URLBActor(BasePolicy):
         return self.policy(self.trunk(obs))
 
     def _predict(self, observation: PyTorchObs, deterministic: bool = False) -> th.Tensor:
-        return self(observation)
+        return self(observation.float())  # type: ignore[union-attr]  # SB3's cast of a float64 Box
 
 
 class URLBCritic(BaseModel):
-    """URLB twin critic: a shared LayerNorm/Tanh trunk and two Q heads.
+    """URLB twin critic: a shared LayerNorm/Tanh trunk and ``n_critics`` Q heads (``q1_net``, ``q2_net``...).
 
     :param observation_space: flat observation space ``[state, skill]``
     :param action_space: action space
     :param hidden_dim: width of the hidden layers
     :param output_dim: size of each head's output (1 for Q values)
+    :param n_critics: number of heads (URLB: 2)
+    :param normalize_images: SB3's flag, kept for ``save``/``load`` (state observations are never images)
     """
 
     def __init__(
-        self, observation_space: spaces.Box, action_space: spaces.Box, hidden_dim: int = 1024, output_dim: int = 1
+        self,
+        observation_space: spaces.Box,
+        action_space: spaces.Box,
+        hidden_dim: int = 1024,
+        output_dim: int = 1,
+        n_critics: int = 2,
+        normalize_images: bool = True,
     ) -> None:
-        super().__init__(observation_space, action_space)
-        in_dim = observation_space.shape[0] + action_space.shape[0]
+        super().__init__(observation_space, action_space, normalize_images=normalize_images)
+        if isinstance(n_critics, bool) or not isinstance(n_critics, int) or n_critics < 1:
+            raise ValueError(f"n_critics must be an int >= 1, got {n_critics!r}")
+        self.hidden_dim = check_hidden_dim(hidden_dim)
+        self.output_dim = output_dim
+        self.n_critics = n_critics
+        in_dim = observation_space.shape[0] + get_action_dim(action_space)
         self.trunk = nn.Sequential(nn.Linear(in_dim, hidden_dim), nn.LayerNorm(hidden_dim), nn.Tanh())
-
-        def head() -> nn.Sequential:
-            return nn.Sequential(nn.Linear(hidden_dim, hidden_dim), nn.ReLU(inplace=True), nn.Linear(hidden_dim, output_dim))
-
-        self.q1_net, self.q2_net = head(), head()
-        self.q_networks = [self.q1_net, self.q2_net]
-        self.n_critics = 2
+        self.q_networks: list[nn.Sequential] = []
+        for i in range(n_critics):
+            head = nn.Sequential(nn.Linear(hidden_dim, hidden_dim), nn.ReLU(inplace=True), nn.Linear(hidden_dim, output_dim))
+            self.add_module(f"q{i + 1}_net", head)
+            self.q_networks.append(head)
         self.apply(orthogonal_init)
 
-    def forward(self, obs: th.Tensor, actions: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
+    def _get_constructor_parameters(self) -> dict[str, Any]:
+        data = super()._get_constructor_parameters()
+        data.update(hidden_dim=self.hidden_dim, output_dim=self.output_dim, n_critics=self.n_critics)
+        return data
+
+    def forward(self, obs: th.Tensor, actions: th.Tensor) -> tuple[th.Tensor, ...]:
         h = self.trunk(th.cat([obs, actions], dim=1))
-        return self.q1_net(h), self.q2_net(h)
+        return tuple(q_net(h) for q_net in self.q_networks)
 
     def q1_forward(self, obs: th.Tensor, actions: th.Tensor) -> th.Tensor:
-        return self.q1_net(self.trunk(th.cat([obs, actions], dim=1)))
+        return self.q_networks[0](self.trunk(th.cat([obs, actions], dim=1)))
 
     def reset_heads(self) -> None:
-        """Re-initialise the two heads (fine-tuning keeps the trunk only, as URLB)."""
-        self.q1_net.apply(orthogonal_init)
-        self.q2_net.apply(orthogonal_init)
+        """Re-initialise the heads (fine-tuning keeps the trunk only, as URLB)."""
+        for q_net in self.q_networks:
+            q_net.apply(orthogonal_init)
 
 
 class URLBPolicy(TD3Policy):
@@ -110,6 +164,14 @@ class URLBPolicy(TD3Policy):
     :param hidden_dim: width of all hidden layers (URLB: 1024)
     :param optimizer_class: optimizer class
     :param optimizer_kwargs: extra optimizer arguments (Adam: :data:`ADAM_KWARGS` unless overridden)
+    :param n_critics: number of critic heads (URLB: 2)
+    :param output_dim: size of each critic head's output (1; APS: the size of ``w``)
+    :param net_arch: SB3's form of the width, ``[h, h]`` or ``dict(pi=[h, h], qf=[h, h])``; replaces
+        ``hidden_dim`` (see :func:`hidden_dim_from_net_arch`)
+    :param normalize_images: SB3's flag, kept for ``save``/``load`` (state observations are never images)
+    :param features_extractor_class: not supported (``ValueError``): URLB's networks read the flat state
+        with their own first layer; transform observations with a Gymnasium ``ObservationWrapper`` instead
+    :param activation_fn: not supported (``ValueError``): URLB's activations are fixed
     """
 
     critic_class: type[URLBCritic] = URLBCritic
@@ -122,19 +184,37 @@ class URLBPolicy(TD3Policy):
         hidden_dim: int = 1024,
         optimizer_class: type[th.optim.Optimizer] = th.optim.Adam,
         optimizer_kwargs: dict[str, Any] | None = None,
-        **critic_kwargs: Any,
+        n_critics: int = 2,
+        output_dim: int = 1,
+        net_arch: list[int] | dict[str, list[int]] | None = None,
+        normalize_images: bool = True,
+        features_extractor_class: Any = None,
+        features_extractor_kwargs: dict[str, Any] | None = None,
+        activation_fn: Any = None,
     ) -> None:
-        self.hidden_dim = hidden_dim
-        self.critic_extra_kwargs = critic_kwargs
+        for name, value, alternative in (
+            ("features_extractor_class", features_extractor_class, "transform observations with a Gymnasium ObservationWrapper"),
+            ("features_extractor_kwargs", features_extractor_kwargs, "transform observations with a Gymnasium ObservationWrapper"),
+            ("activation_fn", activation_fn, "subclass URLBActor/URLBCritic to change the architecture"),
+        ):
+            if value is not None:
+                raise ValueError(
+                    f"{name} is not supported: URLB's networks (LayerNorm/Tanh trunk on the flat state) are fixed; {alternative}"
+                )
+        self.hidden_dim = check_hidden_dim(hidden_dim if net_arch is None else hidden_dim_from_net_arch(net_arch))
+        self.output_dim = output_dim
+        self.n_critics = n_critics
         if optimizer_class is th.optim.Adam:
             optimizer_kwargs = {**ADAM_KWARGS, **(optimizer_kwargs or {})}
         super().__init__(
             observation_space,
             action_space,
             lr_schedule,
-            net_arch=[hidden_dim],
+            net_arch=[self.hidden_dim],
+            normalize_images=normalize_images,
             optimizer_class=optimizer_class,
             optimizer_kwargs=optimizer_kwargs,
+            n_critics=n_critics,
         )
 
     def _build(self, lr_schedule: Schedule) -> None:
@@ -148,12 +228,16 @@ class URLBPolicy(TD3Policy):
         self.critic.optimizer = self.optimizer_class(self.critic.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs)
 
     def make_actor(self, features_extractor: Any = None) -> URLBActor:
-        return URLBActor(self.observation_space, self.action_space, self.hidden_dim).to(self.device)
+        return URLBActor(self.observation_space, self.action_space, self.hidden_dim, self.normalize_images).to(self.device)
 
     def make_critic(self, features_extractor: Any = None) -> URLBCritic:
-        return self.critic_class(self.observation_space, self.action_space, self.hidden_dim, **self.critic_extra_kwargs).to(
-            self.device
+        critic = self.critic_class(
+            self.observation_space, self.action_space, self.hidden_dim, self.output_dim, self.n_critics, self.normalize_images
         )
+        return critic.to(self.device)
+
+    def _predict(self, observation: PyTorchObs, deterministic: bool = False) -> th.Tensor:
+        return self.actor(observation.float())  # type: ignore[union-attr]  # SB3's cast of a float64 Box
 
     def set_training_mode(self, mode: bool) -> None:
         """Put actor and critic in training (``mode=True``) or evaluation mode; the critic target stays in evaluation.
@@ -169,11 +253,9 @@ class URLBPolicy(TD3Policy):
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         data = super()._get_constructor_parameters()
-        for key in ("net_arch", "activation_fn", "n_critics", "share_features_extractor"):
+        for key in ("net_arch", "activation_fn", "share_features_extractor", "features_extractor_class", "features_extractor_kwargs"):
             data.pop(key, None)
-        data.pop("features_extractor_class", None)
-        data.pop("features_extractor_kwargs", None)
-        data.update(hidden_dim=self.hidden_dim, **self.critic_extra_kwargs)
+        data.update(hidden_dim=self.hidden_dim, output_dim=self.output_dim)
         return data
 
 

@@ -98,7 +98,7 @@ def test_fused_update_equals_reward_then_update():
 
 
 def test_cic_default_hyper_parameters():
-    model = CIC("MlpPolicy", "URLB/walker-v0", buffer_size=10, policy_kwargs={"hidden_dim": 32}, cic_hidden_dim=1024)
+    model = CIC("MlpPolicy", "URLB/walker-v0", buffer_size=1024, policy_kwargs={"hidden_dim": 32}, cic_hidden_dim=1024)
     assert model.skill_prior == UniformSkillPrior(64) and model.skill_resample_every == 50
     assert model.env.get_attr("resample_every") == [50]
     rm = model.reward_module
@@ -109,7 +109,7 @@ def test_cic_default_hyper_parameters():
     assert rm.temperature == 0.5 and rm.particle.k == 12 and rm.particle.clip == 0.0005 and rm.particle.use_rms
     assert rm.optimizer.param_groups[0]["lr"] == 1e-4
     assert model.reward_free and model.finetune_skill_choice == "sweep"
-    one = CIC("MlpPolicy", "URLB/point_mass-v0", skill_dim=1, cic_embed_dim=16, buffer_size=10, cic_hidden_dim=8)
+    one = CIC("MlpPolicy", "URLB/point_mass-v0", skill_dim=1, cic_embed_dim=16, buffer_size=1024, cic_hidden_dim=8)
     assert shapes(one.reward_module.skill_net) == [(1, 8), (8, 8), (8, 16)]
     assert shapes(one.reward_module.pred_net)[0] == (32, 8)
 

@@ -17,7 +17,7 @@ from sb3_cic.buffers import URLBReplayBuffer
 
 
 def test_policy_layers_match_spec():
-    model = URLBDDPG("MlpPolicy", "URLB/walker-walk-v0", buffer_size=100)
+    model = URLBDDPG("MlpPolicy", "URLB/walker-walk-v0", buffer_size=1024)
     actor, critic = model.actor, model.critic
     kinds = [type(m) for m in [*actor.trunk, *actor.policy]]
     assert kinds == [nn.Linear, nn.LayerNorm, nn.Tanh, nn.Linear, nn.ReLU, nn.Linear, nn.Tanh]
@@ -74,7 +74,7 @@ def test_nstep_target_on_hand_filled_buffer_with_skills():
 
 
 def test_critic_target_formula():
-    model = URLBDDPG("MlpPolicy", "URLB/point_mass-reach-v0", policy_kwargs={"hidden_dim": 16}, buffer_size=500,
+    model = URLBDDPG("MlpPolicy", "URLB/point_mass-reach-v0", policy_kwargs={"hidden_dim": 16}, buffer_size=500, batch_size=32,
                      learning_starts=0, exploration_clip=0.0, seed=0)
     model.learn(64)
     data = model.replay_buffer.sample(16)
@@ -182,8 +182,8 @@ def test_replay_buffer_pickle_holds_no_networks(tiny):
 
 
 def test_transition_bytes():
-    walker = URLBDDPG("MlpPolicy", "URLB/walker-walk-v0", policy_kwargs={"hidden_dim": 8}, buffer_size=10)
-    cic = CIC("MlpPolicy", "URLB/walker-v0", policy_kwargs={"hidden_dim": 8}, buffer_size=10)
+    walker = URLBDDPG("MlpPolicy", "URLB/walker-walk-v0", policy_kwargs={"hidden_dim": 8}, buffer_size=1024)
+    cic = CIC("MlpPolicy", "URLB/walker-v0", policy_kwargs={"hidden_dim": 8}, buffer_size=1024)
     # float32: obs + next obs + action + reward + done + timeout
     assert walker.replay_buffer.transition_nbytes() == 4 * (24 * 2 + 6 + 3)
     assert cic.replay_buffer.transition_nbytes() == 4 * ((24 + 64) * 2 + 6 + 3)
@@ -200,7 +200,7 @@ def test_clear_errors_for_unsupported_spaces():
     with pytest.raises(ValueError, match="flat state"):
         URLBDDPG("MlpPolicy", ImageEnv())
     with pytest.raises(ValueError, match="reward_free"):
-        URLBDDPG("MlpPolicy", "URLB/walker-walk-v0", reward_free=True, buffer_size=10)
+        URLBDDPG("MlpPolicy", "URLB/walker-walk-v0", reward_free=True, buffer_size=1024)
 
 
 def test_skill_size_mismatch_is_clear_error(tiny):

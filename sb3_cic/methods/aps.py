@@ -28,22 +28,29 @@ class APSCritic(URLBCritic):
     :param action_space: action space
     :param hidden_dim: width of the hidden layers
     :param output_dim: size of ``psi`` and ``w`` (10)
+    :param n_critics: number of heads (URLB: 2)
+    :param normalize_images: SB3's flag, kept for ``save``/``load``
     """
 
     def __init__(
-        self, observation_space: spaces.Box, action_space: spaces.Box, hidden_dim: int = 1024, output_dim: int = 10
+        self,
+        observation_space: spaces.Box,
+        action_space: spaces.Box,
+        hidden_dim: int = 1024,
+        output_dim: int = 10,
+        n_critics: int = 2,
+        normalize_images: bool = True,
     ) -> None:
-        super().__init__(observation_space, action_space, hidden_dim, output_dim)
+        super().__init__(observation_space, action_space, hidden_dim, output_dim, n_critics, normalize_images)
         self.sf_dim = output_dim
 
-    def successor_features(self, obs: th.Tensor, actions: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
-        """``(psi1, psi2)``, each ``(batch, output_dim)``."""
+    def successor_features(self, obs: th.Tensor, actions: th.Tensor) -> tuple[th.Tensor, ...]:
+        """``psi`` of each head, each ``(batch, output_dim)``."""
         return super().forward(obs, actions)
 
-    def forward(self, obs: th.Tensor, actions: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
+    def forward(self, obs: th.Tensor, actions: th.Tensor) -> tuple[th.Tensor, ...]:
         w = obs[:, -self.sf_dim :]
-        psi1, psi2 = self.successor_features(obs, actions)
-        return (psi1 * w).sum(dim=1, keepdim=True), (psi2 * w).sum(dim=1, keepdim=True)
+        return tuple((psi * w).sum(dim=1, keepdim=True) for psi in self.successor_features(obs, actions))
 
     def q1_forward(self, obs: th.Tensor, actions: th.Tensor) -> th.Tensor:
         return (super().q1_forward(obs, actions) * obs[:, -self.sf_dim :]).sum(dim=1, keepdim=True)
@@ -192,7 +199,7 @@ class APS(URLBDDPG):
     def _make_reward_module(self) -> APSReward:
         return APSReward(
             self.state_dim,
-            int(self.action_space.shape[0]),
+            self.action_dim,
             skill_dim=self.skill_dim,
             hidden_dim=self.aps_hidden_dim or self.hidden_dim,
             lr=self.aps_lr,

@@ -58,7 +58,7 @@ class APT(URLBDDPG):
     def _make_reward_module(self) -> APTReward:
         return APTReward(
             self.state_dim,
-            int(self.action_space.shape[0]),
+            self.action_dim,
             hidden_dim=self.apt_hidden_dim or self.hidden_dim,
             rep_dim=self.apt_rep_dim,
             lr=self.apt_lr,

@@ -73,7 +73,7 @@ class CIC(URLBDDPG):
     def _make_reward_module(self) -> CICReward:
         return CICReward(
             self.state_dim,
-            int(self.action_space.shape[0]),
+            self.action_dim,
             skill_dim=self.skill_dim,
             hidden_dim=self.cic_hidden_dim or self.hidden_dim,
             embed_dim=self.cic_embed_dim,

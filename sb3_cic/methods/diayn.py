@@ -55,7 +55,7 @@ class DIAYN(URLBDDPG):
     def _make_reward_module(self) -> DIAYNReward:
         return DIAYNReward(
             self.state_dim,
-            int(self.action_space.shape[0]),
+            self.action_dim,
             skill_dim=self.skill_dim,
             hidden_dim=self.diayn_hidden_dim or self.hidden_dim,
             lr=self.diayn_lr,

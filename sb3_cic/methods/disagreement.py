@@ -43,7 +43,7 @@ class Disagreement(URLBDDPG):
     def _make_reward_module(self) -> DisagreementReward:
         return DisagreementReward(
             self.state_dim,
-            int(self.action_space.shape[0]),
+            self.action_dim,
             hidden_dim=self.disagreement_hidden_dim or self.hidden_dim,
             n_models=self.n_models,
             lr=self.disagreement_lr,

@@ -43,7 +43,7 @@ class ICM(URLBDDPG):
     def _make_reward_module(self) -> ICMReward:
         return ICMReward(
             self.state_dim,
-            int(self.action_space.shape[0]),
+            self.action_dim,
             hidden_dim=self.icm_hidden_dim or self.hidden_dim,
             lr=self.icm_lr,
             scale=self.icm_scale,

@@ -61,7 +61,7 @@ class ProtoRL(URLBDDPG):
     def _make_reward_module(self) -> ProtoReward:
         return ProtoReward(
             self.state_dim,
-            int(self.action_space.shape[0]),
+            self.action_dim,
             pred_dim=self.pred_dim,
             proj_dim=self.proj_dim,
             num_protos=self.num_protos,

@@ -49,7 +49,7 @@ class RND(URLBDDPG):
     def _make_reward_module(self) -> RNDReward:
         return RNDReward(
             self.state_dim,
-            int(self.action_space.shape[0]),
+            self.action_dim,
             hidden_dim=self.rnd_hidden_dim or self.hidden_dim,
             rep_dim=self.rnd_rep_dim,
             lr=self.rnd_lr,

@@ -67,7 +67,7 @@ class SMM(URLBDDPG):
     def _make_reward_module(self) -> SMMReward:
         return SMMReward(
             self.state_dim,
-            int(self.action_space.shape[0]),
+            self.action_dim,
             skill_dim=self.skill_dim,
             hidden_dim=self.smm_hidden_dim or self.hidden_dim,
             vae_hidden_dim=self.vae_hidden_dim,
