@@ -135,7 +135,8 @@ class SkillObservationWrapper(gym.Wrapper):
         self.schedule.fixed = bool(fixed)
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
-        state, info = self.env.reset(seed=seed, options=options)
+        # options only when given: envs with the older ``reset(seed=None)`` signature keep working
+        state, info = self.env.reset(seed=seed) if options is None else self.env.reset(seed=seed, options=options)
         self.schedule.reset(seed)
         return self.schedule.observe(state), info
 

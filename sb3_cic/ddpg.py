@@ -60,6 +60,20 @@ def check_range(name: str, value: Any, low: float, high: float = float("inf"), l
         raise ValueError(f"{name} must be {'in ' if np.isfinite(high) else ''}{bounds}, got {value!r}")
 
 
+def normalize_policy_kwargs(policy_kwargs: dict[str, Any] | None) -> dict[str, Any]:
+    """``policy_kwargs`` in the form the model saves: SB3's ``net_arch`` as ``hidden_dim``, ``n_critics`` set (2).
+
+    :param policy_kwargs: the user's policy arguments
+    """
+    policy_kwargs = dict(policy_kwargs or {})
+    if "net_arch" in policy_kwargs:  # SB3's form of the width
+        width = hidden_dim_from_net_arch(policy_kwargs.pop("net_arch"))
+        if policy_kwargs.setdefault("hidden_dim", width) != width:
+            raise ValueError(f"net_arch says width {width}, hidden_dim {policy_kwargs['hidden_dim']}: give one of them")
+    policy_kwargs.setdefault("n_critics", 2)  # URLB's twin critic (SB3's DDPG would set 1)
+    return policy_kwargs
+
+
 def prepare_env(env: GymEnv | str, prior: SkillPrior | None, resample_every: int | None = 50) -> GymEnv:
     """Make ``env`` (an id, an env or a VecEnv) ready for a URLB agent.
 
@@ -200,12 +214,7 @@ class URLBDDPG(DDPG):
     ) -> None:
         replay_buffer_class = replay_buffer_class or URLBReplayBuffer
         self._check_arguments(locals())
-        policy_kwargs = dict(policy_kwargs or {})
-        if "net_arch" in policy_kwargs:  # SB3's form of the width
-            width = hidden_dim_from_net_arch(policy_kwargs.pop("net_arch"))
-            if policy_kwargs.setdefault("hidden_dim", width) != width:
-                raise ValueError(f"net_arch says width {width}, hidden_dim {policy_kwargs['hidden_dim']}: give one of them")
-        policy_kwargs.setdefault("n_critics", 2)  # SB3's DDPG would set 1
+        policy_kwargs = normalize_policy_kwargs(policy_kwargs)
         if _init_setup_model:  # ``load`` prepares the env itself, with the saved prior
             env = prepare_env(env, skill_prior, skill_resample_every)
         super().__init__(
@@ -316,6 +325,7 @@ class URLBDDPG(DDPG):
         n_steps, self.n_steps = self.n_steps, 1  # n-step returns are configured on our buffer
         super()._setup_model()
         self.n_steps = n_steps
+        self.policy.skill_dim = self.skill_dim
         self.reward_module = self._make_reward_module()
         if self.reward_module is not None:
             self.reward_module.to(self.device)
@@ -385,6 +395,10 @@ class URLBDDPG(DDPG):
                 skill = np.broadcast_to(self.current_skill(), (*observation.shape[:-1], self.skill_dim))
                 observation = np.concatenate([observation, skill], axis=-1)
         return self.policy.predict(observation, state, episode_start, deterministic)
+
+    def set_env(self, env: GymEnv | str, force_reset: bool = True) -> None:
+        """Use ``env`` for training from now on (see SB3's ``set_env``); a plain env gets the model's skill wrapper."""
+        super().set_env(prepare_env(env, self.skill_prior, self.skill_resample_every), force_reset)  # type: ignore[arg-type]
 
     def make_finetune_callback(self) -> BaseCallback | None:
         """The skill-selection callback :meth:`learn` adds when fine-tuning a skill-based method."""
@@ -521,6 +535,8 @@ class URLBDDPG(DDPG):
         **kwargs: Any,
     ) -> SelfURLBDDPG:
         """Load a saved model (see SB3's ``load``); ``env`` may be an id and is wrapped with the saved skill prior."""
+        if "policy_kwargs" in kwargs:  # compared with the saved ones, which are normalised
+            kwargs["policy_kwargs"] = normalize_policy_kwargs(kwargs["policy_kwargs"])
         if env is not None:
             data, _, _ = load_from_zip_file(path, device=device, custom_objects=custom_objects)
             assert data is not None

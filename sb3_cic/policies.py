@@ -15,6 +15,7 @@ from __future__ import annotations
 from functools import reduce
 from typing import Any
 
+import numpy as np
 import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.policies import BaseModel, BasePolicy
@@ -172,6 +173,9 @@ class URLBPolicy(TD3Policy):
     :param features_extractor_class: not supported (``ValueError``): URLB's networks read the flat state
         with their own first layer; transform observations with a Gymnasium ``ObservationWrapper`` instead
     :param activation_fn: not supported (``ValueError``): URLB's activations are fixed
+    :param skill_dim: number of trailing observation entries that hold the skill (set by the model); a
+        state-only observation given to :meth:`predict` is then a ``ValueError`` that points to the
+        model's ``predict``, which appends the model's skill
     """
 
     critic_class: type[URLBCritic] = URLBCritic
@@ -191,7 +195,9 @@ class URLBPolicy(TD3Policy):
         features_extractor_class: Any = None,
         features_extractor_kwargs: dict[str, Any] | None = None,
         activation_fn: Any = None,
+        skill_dim: int = 0,
     ) -> None:
+        self.skill_dim = skill_dim
         for name, value, alternative in (
             ("features_extractor_class", features_extractor_class, "transform observations with a Gymnasium ObservationWrapper"),
             ("features_extractor_kwargs", features_extractor_kwargs, "transform observations with a Gymnasium ObservationWrapper"),
@@ -239,6 +245,15 @@ class URLBPolicy(TD3Policy):
     def _predict(self, observation: PyTorchObs, deterministic: bool = False) -> th.Tensor:
         return self.actor(observation.float())  # type: ignore[union-attr]  # SB3's cast of a float64 Box
 
+    def obs_to_tensor(self, observation: Any) -> tuple[PyTorchObs, bool]:
+        state_dim = self.observation_space.shape[0] - self.skill_dim
+        if self.skill_dim and isinstance(observation, np.ndarray) and observation.ndim and observation.shape[-1] == state_dim:
+            raise ValueError(
+                f"this policy acts on [state, skill] observations ({state_dim} + {self.skill_dim}), got state-only shape "
+                f"{observation.shape}: use model.predict (it appends the model's skill) or append a skill"
+            )
+        return super().obs_to_tensor(observation)
+
     def set_training_mode(self, mode: bool) -> None:
         """Put actor and critic in training (``mode=True``) or evaluation mode; the critic target stays in evaluation.
 
@@ -255,7 +270,7 @@ class URLBPolicy(TD3Policy):
         data = super()._get_constructor_parameters()
         for key in ("net_arch", "activation_fn", "share_features_extractor", "features_extractor_class", "features_extractor_kwargs"):
             data.pop(key, None)
-        data.update(hidden_dim=self.hidden_dim, output_dim=self.output_dim)
+        data.update(hidden_dim=self.hidden_dim, output_dim=self.output_dim, skill_dim=self.skill_dim)
         return data
 
 

@@ -290,3 +290,45 @@ def test_import_without_a_display_is_silent():
 def test_license_is_an_spdx_expression():
     project = tomllib.loads((Path(__file__).parents[1] / "pyproject.toml").read_text())["project"]
     assert project["license"] == "MIT"  # a TOML table is deprecated by setuptools
+
+
+@pytest.mark.parametrize("cls", SKILLED)
+def test_set_env_wraps_a_plain_env(cls):
+    model = cls("MlpPolicy", "Pendulum-v1", **small())
+    model.set_env(gym.make("Pendulum-v1"))
+    assert model.env.env_is_wrapped(SkillObservationWrapper) == [True]
+    model.learn(10)
+
+
+def test_the_policy_of_a_skill_model_refuses_state_only_observations(tmp_path):
+    model = CIC("MlpPolicy", "Pendulum-v1", **small())
+    model.policy.save(tmp_path / "policy.pt")
+    for policy in (model.policy, type(model.policy).load(tmp_path / "policy.pt")):
+        with pytest.raises(ValueError, match=r"\[state, skill\] observations \(3 \+ 64\).*model.predict"):
+            policy.predict(np.zeros((2, 3), dtype=np.float32))
+        assert policy.predict(np.zeros((2, 67), dtype=np.float32))[0].shape == (2, 1)
+
+
+def test_load_compares_policy_kwargs_in_either_form(tmp_path):
+    CIC("MlpPolicy", "Pendulum-v1", **{**small(), "policy_kwargs": {"hidden_dim": 24}}).save(tmp_path / "cic")
+    assert CIC.load(tmp_path / "cic", policy_kwargs={"net_arch": [24, 24]}).hidden_dim == 24
+
+
+class OldResetEnv(gym.Env):
+    """An env whose ``reset`` takes no ``options`` (older Gymnasium code)."""
+
+    observation_space = spaces.Box(-1.0, 1.0, (2,), np.float32)
+    action_space = spaces.Box(-1.0, 1.0, (1,), np.float32)
+
+    def reset(self, seed=None):
+        return np.zeros(2, dtype=np.float32), {}
+
+    def step(self, action):
+        return np.zeros(2, dtype=np.float32), 0.0, False, False, {}
+
+
+def test_skill_wrapper_passes_options_only_when_given():
+    from sb3_cic.skills import UniformSkillPrior
+
+    obs, _ = SkillObservationWrapper(OldResetEnv(), UniformSkillPrior(2)).reset(seed=0)
+    assert obs.shape == (4,)
