@@ -332,3 +332,12 @@ def test_skill_wrapper_passes_options_only_when_given():
 
     obs, _ = SkillObservationWrapper(OldResetEnv(), UniformSkillPrior(2)).reset(seed=0)
     assert obs.shape == (4,)
+
+
+@pytest.mark.parametrize("cls", ALL)
+def test_every_saved_tensor_is_floating_point(cls):
+    """SB3's parameter tools (``get_parameters``/``set_parameters``, ``th.rand_like`` over them) assume it."""
+    params = cls("MlpPolicy", "Pendulum-v1", **small()).learn(30).get_parameters()
+    for name, state in params.items():
+        if "optim" not in name:
+            assert all(t.is_floating_point() for t in state.values()), name

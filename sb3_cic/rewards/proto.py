@@ -84,7 +84,9 @@ class ProtoReward(RewardModule):
         self.apply(orthogonal_init)
         self.predictor_target = copy.deepcopy(self.predictor).requires_grad_(False)
         self.register_buffer("queue", th.zeros(queue_size, pred_dim))
-        self.register_buffer("queue_ptr", th.zeros((), dtype=th.long))
+        # the write position as a float64 (exact up to 2**53): every state_dict entry is floating point,
+        # as SB3's get_parameters/set_parameters tools assume
+        self.register_buffer("queue_ptr", th.zeros((), dtype=th.float64))
         self.make_optimizer()
 
     @th.no_grad()
@@ -100,7 +102,7 @@ class ProtoReward(RewardModule):
     def enqueue(self, embeddings: th.Tensor) -> None:
         """Write ``embeddings`` into the FIFO queue (overwriting the oldest entries)."""
         size = self.queue.shape[0]
-        index = (self.queue_ptr + th.arange(embeddings.shape[0], device=self.queue.device)) % size
+        index = (self.queue_ptr.long() + th.arange(embeddings.shape[0], device=self.queue.device)) % size
         self.queue[index] = embeddings
         self.queue_ptr.copy_((self.queue_ptr + embeddings.shape[0]) % size)
 

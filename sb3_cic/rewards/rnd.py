@@ -15,7 +15,9 @@ class RNDReward(RewardModule):
     """Random Network Distillation (Burda et al., 2019), as in URLB (``agent/rnd.py``).
 
     * The state is normalised by ``BatchNorm1d(affine=False)`` (batch statistics in training mode,
-      the module's default) and clipped to ``+-clip``.
+      the module's default) and clipped to ``+-clip``. Its integer ``num_batches_tracked`` counter is
+      not kept (the running statistics use momentum 0.1, not a cumulative average), so every
+      ``state_dict`` entry is floating point, as SB3's ``get_parameters``/``set_parameters`` tools assume.
     * ``predictor`` and a frozen random ``target``: ``state -> h -> h -> rep_dim``.
     * Loss: the mean over the batch of ``e = mean_j (target_j - predictor_j)^2``.
     * Reward: ``scale * e / (sqrt(running var of e) + 1e-8)``; each reward call updates the running
@@ -45,6 +47,7 @@ class RNDReward(RewardModule):
         super().__init__(state_dim, action_dim, 0, lr)
         self.clip, self.scale = clip, scale
         self.normalize = nn.BatchNorm1d(state_dim, affine=False)
+        self.normalize.register_buffer("num_batches_tracked", None)
         self.predictor = mlp(state_dim, hidden_dim, rep_dim)
         self.target = mlp(state_dim, hidden_dim, rep_dim)
         self.apply(orthogonal_init)
