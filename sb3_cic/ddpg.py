@@ -22,7 +22,7 @@ from stable_baselines3.common.vec_env.base_vec_env import VecEnvWrapper
 
 from envs.skill_wrapper import SkillObservationWrapper, VecSkillObservation
 from sb3_cic.buffers import URLBReplayBuffer
-from sb3_cic.policies import URLBPolicy, hidden_dim_from_net_arch, min_q
+from sb3_cic.policies import URLBPolicy, check_hidden_dim, hidden_dim_from_net_arch, min_q
 from sb3_cic.rewards.base import RewardModule
 from sb3_cic.skills import SkillPrior
 
@@ -70,6 +70,8 @@ def normalize_policy_kwargs(policy_kwargs: dict[str, Any] | None) -> dict[str, A
         width = hidden_dim_from_net_arch(policy_kwargs.pop("net_arch"))
         if policy_kwargs.setdefault("hidden_dim", width) != width:
             raise ValueError(f"net_arch says width {width}, hidden_dim {policy_kwargs['hidden_dim']}: give one of them")
+    if "hidden_dim" in policy_kwargs:
+        check_hidden_dim(policy_kwargs["hidden_dim"])
     policy_kwargs.setdefault("n_critics", 2)  # URLB's twin critic (SB3's DDPG would set 1)
     return policy_kwargs
 
