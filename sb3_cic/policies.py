@@ -33,8 +33,9 @@ ADAM_KWARGS: dict[str, Any] = {"fused": True}
 def hidden_dim_from_net_arch(net_arch: list[int] | dict[str, list[int]]) -> int:
     """The URLB width that SB3's ``net_arch`` describes, or a ``ValueError`` naming ``hidden_dim``.
 
-    URLB's actor and critic have two hidden layers of one width ``h``: ``[h, h]`` and
-    ``dict(pi=[h, h], qf=[h, h])`` say that; any other shape cannot be built.
+    URLB's actor and critic have hidden layers of one width ``h`` and a fixed depth: a list of equal
+    widths (``[h, h]``) or ``dict(pi=[h, h], qf=[h, h])`` gives ``h`` (the number of entries is not a
+    depth here); unequal widths cannot be built.
 
     :param net_arch: SB3's ``net_arch`` (list of widths, or dict with ``pi`` and ``qf``)
     """
