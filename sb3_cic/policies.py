@@ -75,6 +75,7 @@ class URLBActor(BasePolicy):
     :param observation_space: flat observation space ``[state, skill]``
     :param action_space: action space, [-1, 1]
     :param hidden_dim: width of the hidden layers
+    :param normalize_images: SB3's flag, kept for ``save``/``load`` (state observations are never images)
     """
 
     def __init__(
