@@ -80,4 +80,13 @@ def register_envs() -> None:
 
 register_envs()
 
-__all__ = ["DMCEnv", "SkillObservationWrapper", "VecSkillObservation", "URLB_TASKS", "DOMAIN_TASKS", "EPISODE_LENGTH", "make_dmc", "env_ids"]
+__all__ = [
+    "DMCEnv",
+    "SkillObservationWrapper",
+    "VecSkillObservation",
+    "URLB_TASKS",
+    "DOMAIN_TASKS",
+    "EPISODE_LENGTH",
+    "make_dmc",
+    "env_ids",
+]

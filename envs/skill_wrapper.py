@@ -51,11 +51,19 @@ class SkillSchedule:
         self.skill = prior.sample(self.rng)
         self.steps = 0
 
-    def set(self, skill: np.ndarray, fixed: bool = True) -> None:
+    def get_skill(self) -> np.ndarray:
+        """The current skill (a copy)."""
+        return self.skill.copy()
+
+    def set_skill(self, skill: np.ndarray, fixed: bool = True) -> None:
         """Set the skill (``ValueError`` outside the prior's support); ``fixed`` keeps it."""
         self.skill = self.prior.validate(skill).copy()
         self.fixed = fixed
         self.steps = 0
+
+    def set_fixed(self, fixed: bool) -> None:
+        """Switch between a fixed skill (True) and resampling (False)."""
+        self.fixed = bool(fixed)
 
     def reset(self, seed: int | None = None) -> None:
         """A new episode: re-seed if ``seed`` is given, resample unless fixed."""
@@ -72,10 +80,8 @@ class SkillSchedule:
             self.skill = self.prior.sample(self.rng)
 
     def observe(self, state: np.ndarray) -> np.ndarray:
-        """``[state, skill]`` as float32 (``state`` may carry leading batch dimensions)."""
-        state = np.asarray(state)
-        skill = self.skill if state.ndim == 1 else np.broadcast_to(self.skill, (*state.shape[:-1], self.skill.shape[0]))
-        return np.concatenate([state, skill], axis=-1).astype(np.float32, copy=False)
+        """``[state, skill]`` as float32."""
+        return np.concatenate([state, self.skill]).astype(np.float32, copy=False)
 
 
 class SkillObservationWrapper(gym.Wrapper):
@@ -116,11 +122,11 @@ class SkillObservationWrapper(gym.Wrapper):
     @property
     def skill(self) -> np.ndarray:
         """The current skill (a copy)."""
-        return self.schedule.skill.copy()
+        return self.schedule.get_skill()
 
     def get_skill(self) -> np.ndarray:
         """Return the current skill (for ``VecEnv.env_method``)."""
-        return self.skill
+        return self.schedule.get_skill()
 
     def set_skill(self, skill: np.ndarray, fixed: bool = True) -> None:
         """Set the current skill.
@@ -128,11 +134,11 @@ class SkillObservationWrapper(gym.Wrapper):
         :param skill: the new skill; must be in the prior's support (else ``ValueError``)
         :param fixed: keep it until :meth:`set_fixed` (False) is called, instead of resampling
         """
-        self.schedule.set(skill, fixed)
+        self.schedule.set_skill(skill, fixed)
 
     def set_fixed(self, fixed: bool) -> None:
         """Switch between a fixed skill (True) and resampling (False)."""
-        self.schedule.fixed = bool(fixed)
+        self.schedule.set_fixed(fixed)
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
         # options only when given: envs with the older ``reset(seed=None)`` signature keep working
@@ -202,11 +208,12 @@ class VecSkillObservation(VecEnvWrapper):
             return list(range(self.num_envs))
         return [indices] if isinstance(indices, int) else list(indices)
 
-    def env_method(self, method_name: str, *method_args: Any, indices: None | int | Sequence[int] = None, **method_kwargs: Any) -> list[Any]:
+    def env_method(
+        self, method_name: str, *method_args: Any, indices: None | int | Sequence[int] = None, **method_kwargs: Any
+    ) -> list[Any]:
         if method_name not in self._METHODS:
             return self.venv.env_method(method_name, *method_args, indices=indices, **method_kwargs)
-        calls = {"set_skill": SkillSchedule.set, "get_skill": lambda s: s.skill.copy(), "set_fixed": lambda s, f: setattr(s, "fixed", bool(f))}
-        return [calls[method_name](self.schedules[i], *method_args, **method_kwargs) for i in self._indices(indices)]
+        return [getattr(self.schedules[i], method_name)(*method_args, **method_kwargs) for i in self._indices(indices)]
 
     def get_attr(self, attr_name: str, indices: None | int | Sequence[int] = None) -> list[Any]:
         if attr_name not in self._ATTRS:

@@ -17,12 +17,11 @@ from stable_baselines3.common.noise import ActionNoise, NormalActionNoise
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.save_util import load_from_zip_file
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, ReplayBufferSamples, Schedule
-from stable_baselines3.common.vec_env import VecEnv, VecNormalize
-from stable_baselines3.common.vec_env.base_vec_env import VecEnvWrapper
+from stable_baselines3.common.vec_env import VecEnv, unwrap_vec_normalize
 
 from envs.skill_wrapper import SkillObservationWrapper, VecSkillObservation
 from sb3_cic.buffers import URLBReplayBuffer
-from sb3_cic.policies import URLBPolicy, check_hidden_dim, hidden_dim_from_net_arch, min_q
+from sb3_cic.policies import URLBPolicy, check_positive_int, hidden_dim_from_net_arch, min_q
 from sb3_cic.rewards.base import RewardModule
 from sb3_cic.skills import SkillPrior
 
@@ -35,14 +34,6 @@ def _find_skill_wrapper(env: gym.Env) -> SkillObservationWrapper | None:
             return env
         env = env.env
     return None
-
-
-def _has_vec_normalize(env: VecEnv) -> bool:
-    while isinstance(env, VecEnvWrapper):
-        if isinstance(env, VecNormalize):
-            return True
-        env = env.venv
-    return False
 
 
 def check_range(name: str, value: Any, low: float, high: float = float("inf"), low_open: bool = False) -> None:
@@ -71,7 +62,7 @@ def normalize_policy_kwargs(policy_kwargs: dict[str, Any] | None) -> dict[str, A
         if policy_kwargs.setdefault("hidden_dim", width) != width:
             raise ValueError(f"net_arch says width {width}, hidden_dim {policy_kwargs['hidden_dim']}: give one of them")
     if "hidden_dim" in policy_kwargs:
-        check_hidden_dim(policy_kwargs["hidden_dim"])
+        check_positive_int("hidden_dim", policy_kwargs["hidden_dim"])
     policy_kwargs.setdefault("n_critics", 2)  # URLB's twin critic (SB3's DDPG would set 1)
     return policy_kwargs
 
@@ -103,7 +94,7 @@ def prepare_env(env: GymEnv | str, prior: SkillPrior | None, resample_every: int
         return env
     if isinstance(env, VecEnv):
         if not all(env.env_is_wrapped(SkillObservationWrapper)):
-            if _has_vec_normalize(env):
+            if unwrap_vec_normalize(env) is not None:
                 raise ValueError(
                     "a skill-based agent cannot add its skill above VecNormalize: wrap each env in "
                     "SkillObservationWrapper first (make_vec_env(..., wrapper_class=...)), then VecNormalize"
@@ -396,7 +387,7 @@ class URLBDDPG(DDPG):
             if observation.shape[-1] == self.state_dim:
                 skill = np.broadcast_to(self.current_skill(), (*observation.shape[:-1], self.skill_dim))
                 observation = np.concatenate([observation, skill], axis=-1)
-        return self.policy.predict(observation, state, episode_start, deterministic)
+        return super().predict(observation, state, episode_start, deterministic)
 
     def set_env(self, env: GymEnv | str, force_reset: bool = True) -> None:
         """Use ``env`` for training from now on (see SB3's ``set_env``); a plain env gets the model's skill wrapper."""

@@ -49,11 +49,11 @@ def hidden_dim_from_net_arch(net_arch: list[int] | dict[str, list[int]]) -> int:
     return int(layers[0])
 
 
-def check_hidden_dim(hidden_dim: int, name: str = "hidden_dim") -> int:
-    """Return ``hidden_dim`` or raise a ``ValueError`` naming the argument when it is not a positive int."""
-    if isinstance(hidden_dim, bool) or not isinstance(hidden_dim, int) or hidden_dim < 1:
-        raise ValueError(f"{name} must be an int >= 1, got {hidden_dim!r}")
-    return hidden_dim
+def check_positive_int(name: str, value: int) -> int:
+    """Return ``value``, or raise a ``ValueError`` naming the argument when it is not an int >= 1."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise ValueError(f"{name} must be an int >= 1, got {value!r}")
+    return value
 
 
 def min_q(qs: tuple[th.Tensor, ...]) -> th.Tensor:
@@ -82,7 +82,7 @@ class URLBActor(BasePolicy):
         self, observation_space: spaces.Box, action_space: spaces.Box, hidden_dim: int = 1024, normalize_images: bool = True
     ) -> None:
         super().__init__(observation_space, action_space, squash_output=True, normalize_images=normalize_images)
-        self.hidden_dim = check_hidden_dim(hidden_dim)
+        self.hidden_dim = check_positive_int("hidden_dim", hidden_dim)
         obs_dim, act_dim = observation_space.shape[0], get_action_dim(action_space)
         self.trunk = nn.Sequential(nn.Linear(obs_dim, hidden_dim), nn.LayerNorm(hidden_dim), nn.Tanh())
         self.policy = nn.Sequential(
@@ -123,11 +123,9 @@ class URLBCritic(BaseModel):
         normalize_images: bool = True,
     ) -> None:
         super().__init__(observation_space, action_space, normalize_images=normalize_images)
-        if isinstance(n_critics, bool) or not isinstance(n_critics, int) or n_critics < 1:
-            raise ValueError(f"n_critics must be an int >= 1, got {n_critics!r}")
-        self.hidden_dim = check_hidden_dim(hidden_dim)
+        self.hidden_dim = check_positive_int("hidden_dim", hidden_dim)
         self.output_dim = output_dim
-        self.n_critics = n_critics
+        self.n_critics = check_positive_int("n_critics", n_critics)
         in_dim = observation_space.shape[0] + get_action_dim(action_space)
         self.trunk = nn.Sequential(nn.Linear(in_dim, hidden_dim), nn.LayerNorm(hidden_dim), nn.Tanh())
         self.q_networks: list[nn.Sequential] = []
@@ -200,16 +198,19 @@ class URLBPolicy(TD3Policy):
         skill_dim: int = 0,
     ) -> None:
         self.skill_dim = skill_dim
+        wrap_obs = "transform observations with a Gymnasium ObservationWrapper"
         for name, value, alternative in (
-            ("features_extractor_class", features_extractor_class, "transform observations with a Gymnasium ObservationWrapper"),
-            ("features_extractor_kwargs", features_extractor_kwargs, "transform observations with a Gymnasium ObservationWrapper"),
+            ("features_extractor_class", features_extractor_class, wrap_obs),
+            ("features_extractor_kwargs", features_extractor_kwargs, wrap_obs),
             ("activation_fn", activation_fn, "subclass URLBActor/URLBCritic to change the architecture"),
         ):
             if value is not None:
                 raise ValueError(
-                    f"{name} is not supported: URLB's networks (LayerNorm/Tanh trunk on the flat state) are fixed; {alternative}"
+                    f"{name} is not supported: URLB's networks (LayerNorm/Tanh trunk on the flat state) are fixed; "
+                    f"{alternative}"
                 )
-        self.hidden_dim = check_hidden_dim(hidden_dim if net_arch is None else hidden_dim_from_net_arch(net_arch))
+        width = hidden_dim if net_arch is None else hidden_dim_from_net_arch(net_arch)
+        self.hidden_dim = check_positive_int("hidden_dim", width)
         self.output_dim = output_dim
         self.n_critics = n_critics
         if optimizer_class is th.optim.Adam:
@@ -270,8 +271,10 @@ class URLBPolicy(TD3Policy):
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         data = super()._get_constructor_parameters()
-        for key in ("net_arch", "activation_fn", "share_features_extractor", "features_extractor_class", "features_extractor_kwargs"):
+        for key in ("net_arch", "activation_fn", "share_features_extractor"):
             data.pop(key, None)
+        data.pop("features_extractor_class", None)
+        data.pop("features_extractor_kwargs", None)
         data.update(hidden_dim=self.hidden_dim, output_dim=self.output_dim, skill_dim=self.skill_dim)
         return data
 

@@ -77,8 +77,8 @@ def test_skill_methods_act_on_plain_observations(cls):
     state, _ = env.reset(seed=0)
     states = np.stack([state, -state])
     augmented = np.concatenate([states, np.tile(z, (2, 1))], axis=1)
-    np.testing.assert_array_equal(model.predict(states, deterministic=True)[0], model.predict(augmented, deterministic=True)[0])
-    np.testing.assert_array_equal(model.predict(state, deterministic=True)[0], model.predict(augmented[0], deterministic=True)[0])
+    for plain, full in ((states, augmented), (state, augmented[0])):
+        np.testing.assert_array_equal(model.predict(plain, deterministic=True)[0], model.predict(full, deterministic=True)[0])
     # without an env the model appends the last set skill; once fine-tuning chose a skill, that one
     model.env = None
     np.testing.assert_array_equal(model.current_skill(), z)
