@@ -7,7 +7,6 @@ from typing import Any, ClassVar
 
 import numpy as np
 import torch as th
-from gymnasium import spaces
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv
@@ -22,38 +21,20 @@ from sb3_cic.skills import SphereSkillPrior
 class APSCritic(URLBCritic):
     """Successor-feature twin critic: each head outputs ``psi`` (``output_dim``), ``Q = w . psi``.
 
-    The task vector ``w`` is the last ``output_dim`` entries of the observation (the skill).
-
-    :param observation_space: flat observation space ``[state, w]``
-    :param action_space: action space
-    :param hidden_dim: width of the hidden layers
-    :param output_dim: size of ``psi`` and ``w`` (10)
-    :param n_critics: number of heads (URLB: 2)
-    :param normalize_images: SB3's flag, kept for ``save``/``load``
+    The task vector ``w`` is the last ``output_dim`` entries of the observation (the skill); APS sets
+    ``output_dim`` to its ``sf_dim`` (10). The arguments are :class:`~sb3_cic.policies.URLBCritic`'s.
     """
-
-    def __init__(
-        self,
-        observation_space: spaces.Box,
-        action_space: spaces.Box,
-        hidden_dim: int = 1024,
-        output_dim: int = 10,
-        n_critics: int = 2,
-        normalize_images: bool = True,
-    ) -> None:
-        super().__init__(observation_space, action_space, hidden_dim, output_dim, n_critics, normalize_images)
-        self.sf_dim = output_dim
 
     def successor_features(self, obs: th.Tensor, actions: th.Tensor) -> tuple[th.Tensor, ...]:
         """``psi`` of each head, each ``(batch, output_dim)``."""
         return super().forward(obs, actions)
 
     def forward(self, obs: th.Tensor, actions: th.Tensor) -> tuple[th.Tensor, ...]:
-        w = obs[:, -self.sf_dim :]
+        w = obs[:, -self.output_dim :]
         return tuple((psi * w).sum(dim=1, keepdim=True) for psi in self.successor_features(obs, actions))
 
     def q1_forward(self, obs: th.Tensor, actions: th.Tensor) -> th.Tensor:
-        return (super().q1_forward(obs, actions) * obs[:, -self.sf_dim :]).sum(dim=1, keepdim=True)
+        return (super().q1_forward(obs, actions) * obs[:, -self.output_dim :]).sum(dim=1, keepdim=True)
 
 
 class APSPolicy(URLBPolicy):
