@@ -1,45 +1,49 @@
-"""Update throughput of every method against this machine's compute bound.
+"""Update throughput of every method against the time of its own matrix products.
 
-For each method and size (``full``: hidden 1024, batch 1024, URLB; ``small``: hidden 256, batch 256)
-one fresh process (so that its peak memory is its own) builds the model on ``URLB/walker-v0``
-(DDPG: ``URLB/walker-stand-v0``), fills the replay buffer with random steps, and measures
+For each method and size (``full``: hidden 1024, batch 1024, URLB; ``small``: hidden 256, batch 256,
+the size of this project's studies) one fresh process (so that its peak memory is its own) builds
+the model on ``URLB/walker-v0`` (DDPG: ``URLB/walker-stand-v0``), fills the replay buffer with random
+steps, and measures, timed in turns (see :func:`best_times`), the fastest of ``--repeats``:
 
-* ``update ms``: time of one update (``model.train(1, batch)``: sampling, the reward module's
-  update and relabelling, critic and actor steps, target update), the fastest of ``--repeats``
-  after warm-up, timed in turns with the matmul below (see :func:`best_times`);
-* ``GFLOP``: the update's floating-point operations, counted from its matrix products by
-  ``torch.utils.flop_counter.FlopCounterMode`` (forward and backward);
-* ``bound ms``: GFLOP divided by this machine's matmul rate (a ``n x n x n`` matmul, ``n`` = hidden
-  size, fastest of the same turns, same threads): the time the update would take at the rate of
-  its matrix products alone; ``x bound`` = update / bound;
-* ``learn steps/s``: env steps per second of ``learn()`` while training (one update every 2 steps);
-  ``2M h``: the hours a 2M-step pre-training (URLB's length) takes at that rate;
-* ``loop %``: the time of that ``learn()`` outside ``model.train`` and the VecEnv's ``step`` (both
-  timed inside it; env steps include the skill wrapper and Monitor), over the time inside them,
-  i.e. what SB3's loop adds, action selection included;
-* ``peak MiB``: the process's peak resident memory (CPU; the buffer holds only the steps taken)
-  or ``torch.cuda.max_memory_allocated`` (CUDA).
+* ``matmul ms``: the update's own matrix products (every ``mm``/``addmm``/``bmm`` one update calls,
+  recorded with their shapes and strides and replayed on tensors of the same layout): the time the
+  update would take if everything but its matrix products were free;
+* ``after ms``: one update (``model.train(1, batch)``: sampling, the reward module's update and
+  relabelling, critic and actor steps, target update) with every switch of
+  :data:`sb3_cic.speed.speed_options` on (the default), and ``x``: after / matmul;
+* ``before ms``: the same update with all of them off, and ``x``;
+* one column per switch: the update with only that switch off (``-``: the switch does not touch
+  this method's update);
+* ``GFLOP``: the update's floating-point operations in its matrix products
+  (``torch.utils.flop_counter.FlopCounterMode``, forward and backward), and ``GFLOP/s`` at ``after``;
+* ``loop %`` before and after: the time of a ``learn()`` (one update every 2 env steps) outside
+  ``model.train`` and the VecEnv's ``step`` (both timed inside it; env steps include the skill
+  wrapper and Monitor), over the time inside them: what SB3's loop adds, action selection and
+  buffer insertion included; ``lean_acting`` is the switch that acts on it;
+* ``learn steps/s`` (after) and ``2M h``: the hours a 2M-step pre-training takes at that rate;
+* ``peak MiB``: the process's peak resident memory (CPU) or ``torch.cuda.max_memory_allocated``.
 
 A plain-PyTorch CIC (the same networks, losses and reward on batches drawn from tensors, no SB3)
-runs beside them as ``cic (plain torch)``. ``--ablations`` times the CIC update with each speed
-change of the package undone (the "before" of each change), and the kNN reward of a batch.
-``--profile`` prints where the time of five CIC updates goes (``torch.profiler``, by operator, with
-the share of the matrix products). ``--compile MODE`` adds rows with the update's loss computations
+runs beside them as ``cic (plain torch)``. ``--ablations`` times the CIC update with each older
+speed change undone (fused reward, frozen critic in the actor step, foreach lerp, fused Adam) and
+the kNN reward of a batch. ``--profile`` prints where the time of five updates of each method goes
+(``torch.profiler``, by operator). ``--compile MODE`` adds rows with the update's loss computations
 under ``torch.compile`` (``critic_loss``, ``actor_loss`` and the reward module's networks;
 ``reduce-overhead`` adds CUDA graphs on a GPU); the package itself runs eagerly.
 
 Usage::
 
-    MUJOCO_GL=disable python benchmarks/throughput.py                      # every method, both sizes
+    MUJOCO_GL=disable python benchmarks/throughput.py --threads 1 --sizes small   # the study size, one thread
     MUJOCO_GL=disable python benchmarks/throughput.py --methods cic ddpg --sizes full --ablations
     MUJOCO_GL=disable python benchmarks/throughput.py --device cuda         # where a GPU exists
-    MUJOCO_GL=disable python benchmarks/throughput.py --methods cic --sizes full --compile default
+    MUJOCO_GL=disable python benchmarks/throughput.py --methods cic --sizes small --profile
 """
 
 from __future__ import annotations
 
 import argparse
 import concurrent.futures as futures
+import dataclasses
 import multiprocessing
 import os
 import resource
@@ -53,6 +57,7 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 import torch as th  # noqa: E402
 import torch.nn.functional as F  # noqa: E402
 from torch import nn  # noqa: E402
+from torch.utils._python_dispatch import TorchDispatchMode  # noqa: E402
 from torch.utils.flop_counter import FlopCounterMode  # noqa: E402
 
 SIZES = {"full": (1024, 1024), "small": (256, 256)}
@@ -85,12 +90,6 @@ def best_times(fns: dict[str, Callable[[], Any]], device: th.device, repeats: in
     return best
 
 
-def matmul(n: int, device: th.device) -> Callable[[], Any]:
-    """One ``n x n`` by ``n x n`` float32 matmul (``2 n^3`` FLOP), into a preallocated output."""
-    a, b, out = th.randn(n, n, device=device), th.randn(n, n, device=device), th.empty(n, n, device=device)
-    return lambda: th.mm(a, b, out=out)
-
-
 def count_flops(fn: Callable[[], Any]) -> int:
     """Floating-point operations of the matrix products of one call of ``fn``."""
     with FlopCounterMode(display=False) as counter:
@@ -104,12 +103,54 @@ def peak_memory_mib(device: th.device) -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # KiB on Linux
 
 
+MATMULS = {th.ops.aten.mm.default, th.ops.aten.addmm.default, th.ops.aten.bmm.default, th.ops.aten.baddbmm.default}
+
+
+class _RecordMatmuls(TorchDispatchMode):
+    """Records each matrix product's operator, argument layouts (shape, stride) and keyword arguments."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.calls: list[tuple[Any, list[Any], dict[str, Any]]] = []
+
+    def __torch_dispatch__(self, func: Any, types: Any, args: tuple = (), kwargs: dict | None = None) -> Any:
+        kwargs = kwargs or {}
+        if func in MATMULS:
+            layouts = [(a.shape, a.stride(), a.dtype) if isinstance(a, th.Tensor) else a for a in args]
+            self.calls.append((func, layouts, dict(kwargs)))
+        return func(*args, **kwargs)
+
+
+def matmul_replay(step: Callable[[], Any], device: th.device) -> tuple[Callable[[], None], int]:
+    """A function that runs the matrix products of one call of ``step`` on fresh tensors of the same layouts.
+
+    The products see inputs of the same shapes and strides (transposed views stay transposed), so
+    MKL/cuBLAS pick the same kernels; their values are random (products' time does not depend on them).
+    Returns the function and the number of products.
+    """
+    recorder = _RecordMatmuls()
+    with recorder:
+        step()
+    calls = []
+    for func, layouts, kwargs in recorder.calls:
+        args = [
+            th.empty_strided(a[0], a[1], dtype=a[2], device=device).normal_() if isinstance(a, tuple) else a for a in layouts
+        ]
+        calls.append((func, args, kwargs))
+
+    def replay() -> None:
+        for func, args, kwargs in calls:
+            func(*args, **kwargs)
+
+    return replay, len(calls)
+
+
 def time_against_bound(step: Callable[[], Any], hidden: int, device: th.device, repeats: int) -> dict[str, float]:
-    """The fastest time of ``step`` (one update) in turns with the matmul, its FLOP and its compute bound."""
-    best = best_times({"update": step, "matmul": matmul(hidden, device)}, device, repeats)
+    """The fastest time of ``step`` (one update) in turns with its own matrix products, and its FLOP."""
+    replay, _ = matmul_replay(step, device)
+    best = best_times({"update": step, "matmul": replay}, device, repeats)
     flops = count_flops(step)
-    rate = 2 * hidden**3 / best["matmul"]
-    return {"update_ms": best["update"] * 1e3, "gflop": flops / 1e9, "bound_ms": flops / rate * 1e3, "rate": rate}
+    return {"update_ms": best["update"] * 1e3, "gflop": flops / 1e9, "bound_ms": best["matmul"] * 1e3}
 
 
 # ----------------------------------------------------------------------------------------------
@@ -182,22 +223,50 @@ def timed_learn(model: Any, steps: int, device: th.device) -> tuple[float, float
     return total, spent["train"], spent["env"]
 
 
+#: methods whose update computes k-nearest-neighbour distances (the ``knn_partition`` switch)
+KNN_METHODS = {"cic", "apt", "aps", "protorl"}
+
+
 def measure_method(
     method: str, size: str, device_name: str, repeats: int, learn_steps: int, threads: int, compile_mode: str = ""
 ) -> dict:
     """One row of the table (run in a fresh process)."""
+    from sb3_cic.speed import SpeedOptions, speed_options
+
     th.set_num_threads(threads)
     device = th.device(device_name)
     hidden, batch = SIZES[size]
-    model = build(method, hidden, batch, device_name, fill_steps(batch) + learn_steps + 1000, compile_mode=compile_mode)
-    timing = time_against_bound(lambda: model.train(1, batch), hidden, device, repeats)
-    total, train, env = timed_learn(model, learn_steps, device)
+    model = build(method, hidden, batch, device_name, fill_steps(batch) + 2 * learn_steps + 1000, compile_mode=compile_mode)
+    every = [f.name for f in dataclasses.fields(SpeedOptions)]
+
+    def update(**off: bool) -> Callable[[], None]:
+        def run() -> None:
+            with speed_options.override(**off):
+                model.train(1, batch)
+
+        return run
+
+    replay, n_matmuls = matmul_replay(update(), device)
+    variants = {"after": update(), "before": update(**dict.fromkeys(every, False)), "matmul": replay}
+    switches = ["lean_adam", *(["knn_partition"] if method in KNN_METHODS else [])]
+    variants.update({name: update(**{name: False}) for name in switches})
+    best = best_times(variants, device, repeats)
+    loop = {}
+    for label, acting in (("before", False), ("after", True)):
+        with speed_options.override(lean_acting=acting):
+            total, train, env = timed_learn(model, learn_steps, device)
+        loop[label] = (total, train, env)
+    flops = count_flops(update())
+    total, train, env = loop["after"]
     return {
         "name": method + (f" ({compile_mode})" if compile_mode else ""),
         "size": size,
-        **timing,
+        "ms": {k: v * 1e3 for k, v in best.items()},
+        "n_matmuls": n_matmuls,
+        "gflop": flops / 1e9,
+        "loop_before": 100 * (loop["before"][0] - loop["before"][1] - loop["before"][2]) / (loop["before"][1] + loop["before"][2]),
+        "loop_after": 100 * (total - train - env) / (train + env),
         "steps_per_s": learn_steps / total,
-        "loop_pct": 100 * (total - train - env) / (train + env),
         "peak_mib": peak_memory_mib(device),
     }
 
@@ -300,12 +369,15 @@ def measure_plain_cic(size: str, device_name: str, repeats: int, threads: int) -
         idx = th.randint(capacity, (batch,), device=device)
         agent.update(obs[idx], actions[idx], next_obs[idx], discounts[idx])
 
+    timing = time_against_bound(step, hidden, device, repeats)
     return {
         "name": "cic (plain torch)",
         "size": size,
-        **time_against_bound(step, hidden, device, repeats),
+        "ms": {"after": timing["update_ms"], "matmul": timing["bound_ms"]},
+        "gflop": timing["gflop"],
+        "loop_before": float("nan"),
+        "loop_after": float("nan"),
         "steps_per_s": float("nan"),
-        "loop_pct": float("nan"),
         "peak_mib": peak_memory_mib(device),
     }
 
@@ -386,13 +458,13 @@ def measure_ablations(size: str, device_name: str, repeats: int, threads: int) -
     return [(name, seconds * 1e3) for name, seconds in rows]
 
 
-def profile_cic(size: str, device_name: str, threads: int, updates: int = 5) -> str:
-    """``torch.profiler`` table of ``updates`` CIC updates by operator, and the matrix products' share."""
+def profile_method(method: str, size: str, device_name: str, threads: int, updates: int = 5, rows: int = 8) -> str:
+    """The top operators of ``updates`` updates of ``method`` by own time (``torch.profiler``), and the products' share."""
     from torch.profiler import ProfilerActivity, profile
 
     th.set_num_threads(threads)
     hidden, batch = SIZES[size]
-    model = build("cic", hidden, batch, device_name)
+    model = build(method, hidden, batch, device_name)
     for _ in range(2):
         model.train(1, batch)
     activities = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if device_name.startswith("cuda") else [])
@@ -403,9 +475,15 @@ def profile_cic(size: str, device_name: str, threads: int, updates: int = 5) -> 
     events = prof.key_averages()
     key = "self_device_time_total" if device_name.startswith("cuda") else "self_cpu_time_total"
     total = sum(getattr(e, key) for e in events)
-    products = sum(getattr(e, key) for e in events if e.key in ("aten::mm", "aten::addmm"))
-    table = events.table(sort_by=key, row_limit=20)
-    return f"{table}\nmatrix products (mm, addmm): {100 * products / total:.1f}% of the operators' own time\n"
+    products = sum(getattr(e, key) for e in events if e.key in ("aten::mm", "aten::addmm", "aten::bmm", "aten::baddbmm"))
+    calls = sum(e.count for e in events if e.key.startswith("aten::")) / updates
+    top = sorted(events, key=lambda e: -getattr(e, key))[:rows]
+    lines = [f"{method} ({size}): {calls:.0f} aten calls per update; matrix products {100 * products / total:.1f}% of own time"]
+    lines += [
+        f"    {e.key[:48]:<48}{getattr(e, key) / updates / 1e3:>8.3f} ms{e.count / updates:>7.1f} calls{100 * getattr(e, key) / total:>7.1f}%"
+        for e in top
+    ]
+    return "\n".join(lines)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -431,15 +509,22 @@ def main() -> None:
         metavar="MODE",
         help="also time each method with its losses and reward networks under torch.compile(mode=MODE)",
     )
-    parser.add_argument("--profile", action="store_true", help="where the time of a CIC update goes, by operator")
+    parser.add_argument("--profile", action="store_true", help="where the time of each method's update goes, by operator")
     args = parser.parse_args()
 
     print(f"torch {th.__version__}, device {args.device}, {args.threads} threads")
     header = (
-        f"{'method':<20}{'size':>6}{'update ms':>11}{'GFLOP':>8}{'GFLOP/s':>9}{'bound ms':>10}{'x bound':>9}"
-        f"{'learn steps/s':>15}{'2M h':>8}{'loop %':>8}{'peak MiB':>10}"
+        f"{'method':<20}{'size':>6}{'matmul ms':>10}{'after ms':>10}{'x':>7}{'before ms':>10}{'x':>7}"
+        f"{'-lean_adam':>11}{'-knn_part':>10}{'GFLOP':>7}{'GFLOP/s':>8}{'loop% b/a':>12}{'steps/s':>9}{'2M h':>7}{'MiB':>6}"
     )
     print(header + "\n" + "-" * len(header))
+
+    def cell(ms: dict[str, float], key: str, width: int, ratio: bool = False) -> str:
+        if key not in ms:
+            return f"{'-':>{width}}" + (f"{'':>7}" if ratio else "")
+        text = f"{ms[key]:>{width}.2f}"
+        return text + (f"{ms[key] / ms['matmul']:>6.2f}x" if ratio else "")
+
     for size in args.sizes:
         modes = ["", args.compile] if args.compile else [""]
         jobs = [
@@ -451,11 +536,12 @@ def main() -> None:
             jobs.append((measure_plain_cic, size, args.device, args.repeats, args.threads))
         for fn, *fn_args in jobs:
             r = _in_fresh_process(fn, *fn_args)
+            ms = r["ms"]
             print(
-                f"{r['name']:<20}{r['size']:>6}{r['update_ms']:>11.2f}{r['gflop']:>8.2f}{r['rate'] / 1e9:>9.0f}"
-                f"{r['bound_ms']:>10.2f}{r['update_ms'] / r['bound_ms']:>8.2f}x{r['steps_per_s']:>15.1f}"
-                f"{2e6 / r['steps_per_s'] / 3600:>8.1f}"
-                f"{r['loop_pct']:>7.1f}%{r['peak_mib']:>10.0f}",
+                f"{r['name']:<20}{r['size']:>6}{ms['matmul']:>10.2f}{cell(ms, 'after', 10, True)}{cell(ms, 'before', 10, True)}"
+                f"{cell(ms, 'lean_adam', 11)}{cell(ms, 'knn_partition', 10)}{r['gflop']:>7.2f}{r['gflop'] * 1e3 / ms['after']:>8.0f}"
+                f"{r['loop_before']:>6.1f}/{r['loop_after']:>4.1f}%{r['steps_per_s']:>9.1f}{2e6 / r['steps_per_s'] / 3600:>7.1f}"
+                f"{r['peak_mib']:>6.0f}",
                 flush=True,
             )
     if args.ablations:
@@ -465,8 +551,9 @@ def main() -> None:
                 print(f"{name:<55}{ms:>10.2f}")
     if args.profile:
         for size in args.sizes:
-            print(f"\nCIC update by operator ({size}: hidden {SIZES[size][0]}, batch {SIZES[size][1]}), 5 updates")
-            print(_in_fresh_process(profile_cic, size, args.device, args.threads))
+            print(f"\nTop operators of 5 updates ({size}: hidden {SIZES[size][0]}, batch {SIZES[size][1]}), per update")
+            for method in args.methods:
+                print(_in_fresh_process(profile_method, method, size, args.device, args.threads), flush=True)
 
 
 if __name__ == "__main__":

@@ -24,6 +24,7 @@ from sb3_cic.buffers import URLBReplayBuffer
 from sb3_cic.policies import URLBPolicy, check_positive_int, hidden_dim_from_net_arch, min_q
 from sb3_cic.rewards.base import RewardModule
 from sb3_cic.skills import SkillPrior
+from sb3_cic.speed import speed_options
 
 SelfURLBDDPG = TypeVar("SelfURLBDDPG", bound="URLBDDPG")
 
@@ -447,7 +448,8 @@ class URLBDDPG(DDPG):
         return {"critic_loss": critic_loss.detach(), "actor_loss": actor_loss.detach(), "target_q": target_q}
 
     def train(self, gradient_steps: int, batch_size: int = 100) -> None:
-        self.policy.set_training_mode(True)
+        if not (speed_options.lean_acting and self.policy.training):  # lean acting leaves the policy in training mode
+            self.policy.set_training_mode(True)
         self._update_learning_rate([self.actor.optimizer, self.critic.optimizer])
         for _ in range(gradient_steps):
             self._n_updates += 1
@@ -466,7 +468,26 @@ class URLBDDPG(DDPG):
     def _sample_action(
         self, learning_starts: int, action_noise: Any = None, n_envs: int = 1
     ) -> tuple[np.ndarray, np.ndarray]:
-        return super()._sample_action(0 if self.warmup_with_policy else learning_starts, action_noise, n_envs)
+        """SB3's exploration action (see ``OffPolicyAlgorithm._sample_action``).
+
+        With ``speed_options.lean_acting`` the policy's action comes from one forward pass of the actor
+        on the pending observations instead of SB3's ``predict``, which checks, converts and reshapes
+        them and switches the networks to evaluation mode at every env step (URLB's actor has no
+        layer that acts differently in training mode). The same float32 input, the same rescaling, the
+        same noise: the same action.
+        """
+        learning_starts = 0 if self.warmup_with_policy else learning_starts
+        obs = self._last_obs
+        lean = speed_options.lean_acting and isinstance(obs, np.ndarray) and isinstance(self.action_space, spaces.Box)
+        if not lean or self.num_timesteps < learning_starts:
+            return super()._sample_action(learning_starts, action_noise, n_envs)
+        with th.no_grad():
+            mu = self.actor(th.as_tensor(obs, device=self.device).float())
+        unscaled_action = self.policy.unscale_action(mu.cpu().numpy().reshape((-1, *self.action_space.shape)))
+        scaled_action = self.policy.scale_action(unscaled_action)  # SB3's round trip, kept for the same numbers
+        if action_noise is not None:
+            scaled_action = np.clip(scaled_action + action_noise(), -1, 1)
+        return self.policy.unscale_action(scaled_action), scaled_action
 
     def learn(
         self: SelfURLBDDPG,

@@ -24,9 +24,12 @@ from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 from stable_baselines3.td3.policies import TD3Policy
 from torch import nn
 
+from sb3_cic.speed import FusedAdam
 
-#: Adam's fused implementation by default: the same update as the per-tensor one (to float rounding),
-#: one kernel over all parameters, many times faster on CPU (see benchmarks/throughput.py)
+
+#: Adam's fused implementation, also when ``torch.optim.Adam`` is given: the same update as the per-tensor
+#: one (to float rounding), one kernel over all parameters, many times faster on CPU (see
+#: benchmarks/throughput.py). The default optimizer class, :class:`~sb3_cic.speed.FusedAdam`, is fused too.
 ADAM_KWARGS: dict[str, Any] = {"fused": True}
 
 
@@ -163,7 +166,8 @@ class URLBPolicy(TD3Policy):
     :param action_space: action space
     :param lr_schedule: learning rate schedule (Adam, URLB: 1e-4)
     :param hidden_dim: width of all hidden layers (URLB: 1024)
-    :param optimizer_class: optimizer class
+    :param optimizer_class: optimizer class (default :class:`~sb3_cic.speed.FusedAdam`, Adam with a lean step;
+        ``torch.optim.Adam`` gets ``fused=True`` as well)
     :param optimizer_kwargs: extra optimizer arguments (Adam: :data:`ADAM_KWARGS` unless overridden)
     :param n_critics: number of critic heads (URLB: 2)
     :param output_dim: size of each critic head's output (1; APS: the size of ``w``)
@@ -186,7 +190,7 @@ class URLBPolicy(TD3Policy):
         action_space: spaces.Box,
         lr_schedule: Schedule,
         hidden_dim: int = 1024,
-        optimizer_class: type[th.optim.Optimizer] = th.optim.Adam,
+        optimizer_class: type[th.optim.Optimizer] = FusedAdam,
         optimizer_kwargs: dict[str, Any] | None = None,
         n_critics: int = 2,
         output_dim: int = 1,

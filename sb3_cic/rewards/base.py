@@ -8,7 +8,7 @@ import torch as th
 from stable_baselines3.common.type_aliases import ReplayBufferSamples
 from torch import nn
 
-from sb3_cic.policies import ADAM_KWARGS
+from sb3_cic.speed import FusedAdam
 
 
 class RewardModule(nn.Module):
@@ -35,9 +35,9 @@ class RewardModule(nn.Module):
         self.lr = lr
 
     def make_optimizer(self, params: Any = None, lr: float | None = None) -> None:
-        """Create ``self.optimizer`` (Adam, fused) over ``params`` (default: all trainable parameters)."""
+        """Create ``self.optimizer`` (:class:`~sb3_cic.speed.FusedAdam`) over ``params`` (default: all trainable parameters)."""
         params = [p for p in self.parameters() if p.requires_grad] if params is None else params
-        self.optimizer = th.optim.Adam(params, lr=self.lr if lr is None else lr, **ADAM_KWARGS)
+        self.optimizer = FusedAdam(params, lr=self.lr if lr is None else lr)
 
     def split(self, obs: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
         """Split observations into ``(state, skill)``."""

@@ -1,0 +1,153 @@
+"""Speed switches of the update and the acting loop, and the Adam they use.
+
+Each switch changes how a result is computed, not the result: ``tests/test_speed.py`` checks every
+one against its switched-off form, and ``benchmarks/throughput.py --ablations`` times the update
+with each one switched off in turn. All are on by default; switch one off for the whole process::
+
+    from sb3_cic.speed import speed_options
+
+    speed_options.lean_adam = False              # from now on
+    with speed_options.override(knn_partition=False):
+        model.train(1, 256)                      # only inside the block
+
+The update's other speed changes are older and are switched the same way as before: the model's
+``freeze_critic_in_actor_step`` and the reward module's fused ``update_and_reward``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, fields
+from typing import Any, Callable
+
+import torch as th
+from torch.optim import optimizer as torch_optimizer
+
+
+@dataclass
+class SpeedOptions:
+    """The switches; see the module docstring.
+
+    :param lean_adam: :class:`FusedAdam` steps with one call of torch's fused Adam kernel and one step
+        counter per parameter group, skipping ``torch.optim``'s per-step bookkeeping (~0.4 ms a step
+        on this project's 2-core CPU; the same kernel, so the same parameters, bit for bit)
+    :param knn_partition: on the CPU, the k nearest distances of the particle reward are selected with
+        numpy's ``partition`` (~3.5x faster than ``torch.topk`` on a 256 x 256 matrix); the same
+        values, in another order, so means agree to float rounding
+    :param lean_acting: the policy acts on the pending observation with one forward pass of the actor
+        instead of SB3's ``predict`` (which re-checks, converts and reshapes the observation at every
+        env step), and ``train`` leaves the training mode alone while it is set; the same action
+    """
+
+    lean_adam: bool = True
+    knn_partition: bool = True
+    lean_acting: bool = True
+
+    @contextmanager
+    def override(self, **flags: bool) -> Iterator[SpeedOptions]:
+        """Set some switches inside a ``with`` block and restore them after it."""
+        names = {f.name for f in fields(self)}
+        unknown = set(flags) - names
+        if unknown:
+            raise ValueError(f"unknown speed option(s) {sorted(unknown)}; known: {sorted(names)}")
+        saved = {name: getattr(self, name) for name in flags}
+        for name, value in flags.items():
+            setattr(self, name, bool(value))
+        try:
+            yield self
+        finally:
+            for name, value in saved.items():
+                setattr(self, name, value)
+
+
+#: the process-wide switches
+speed_options = SpeedOptions()
+
+
+class FusedAdam(th.optim.Adam):
+    """``torch.optim.Adam(fused=True)`` whose ``step`` calls the fused kernel with little else around it.
+
+    torch's ``step`` spends more time than its kernel at this project's study size (hidden 256): it
+    groups the tensors again at each step, increments one step tensor per parameter (a separate
+    operator call each on the CPU) and runs the profiler and compiler wrappers. This ``step`` keeps
+    the step counters of a group's parameters as the entries of one vector (each parameter's
+    ``state["step"]`` is its own 0-d view of it), increments them with one operator call and calls
+    ``torch._fused_adam_`` once per group: the same kernel with the same inputs, so the same
+    parameters and state. The state dict has torch's format, and torch's own ``step`` still works on
+    it. It falls back to torch's ``step`` for anything else: a closure, step hooks, ``amsgrad``,
+    ``capturable`` or ``differentiable`` groups, sparse gradients, parameters without state yet (the
+    first step creates it), or with ``speed_options.lean_adam`` off.
+
+    :param params: parameters or parameter groups
+    :param kwargs: ``torch.optim.Adam``'s arguments (``fused`` defaults to True)
+    """
+
+    def __init__(self, params: Any, **kwargs: Any) -> None:
+        super().__init__(params, **{"fused": True, **kwargs})
+
+    def _lean_groups(self) -> list[tuple[dict[str, Any], list[th.Tensor], th.Tensor]] | None:
+        if (
+            not speed_options.lean_adam
+            or self._optimizer_step_pre_hooks
+            or self._optimizer_step_post_hooks
+            or torch_optimizer._global_optimizer_pre_hooks
+            or torch_optimizer._global_optimizer_post_hooks
+        ):
+            return None
+        groups = []
+        for group in self.param_groups:
+            if not group["fused"] or group["amsgrad"] or group["capturable"] or group["differentiable"]:
+                return None
+            if group.get("decoupled_weight_decay", False):
+                return None
+            params = [p for p in group["params"] if p.grad is not None]
+            if any(p.grad.is_sparse or "step" not in self.state[p] for p in params):  # type: ignore[union-attr]
+                return None
+            if params:
+                steps = [self.state[p]["step"] for p in params]
+                base = steps[0]._base
+                if base is None or base.shape != (len(steps),) or any(s._base is not base for s in steps):
+                    base = th.stack(steps)  # first lean step, a loaded state dict, or another set of gradients
+                    for i, p in enumerate(params):
+                        self.state[p]["step"] = base[i]
+                groups.append((group, params, base))
+        return groups
+
+    @th.no_grad()
+    def step(self, closure: Callable[[], float] | None = None) -> float | None:  # type: ignore[override]
+        """One Adam step (see the class docstring for when torch's own ``step`` runs instead)."""
+        groups = None if closure is not None else self._lean_groups()
+        if groups is None:
+            return super().step(closure)
+        for group, params, steps in groups:
+            states = [self.state[p] for p in params]
+            steps.add_(1)
+            beta1, beta2 = group["betas"]
+            th._fused_adam_(
+                params,
+                [p.grad for p in params],
+                [s["exp_avg"] for s in states],
+                [s["exp_avg_sq"] for s in states],
+                [],
+                [state["step"] for state in states],
+                amsgrad=False,
+                lr=group["lr"],
+                beta1=beta1,
+                beta2=beta2,
+                weight_decay=group["weight_decay"],
+                eps=group["eps"],
+                maximize=group["maximize"],
+                grad_scale=None,
+                found_inf=None,
+            )
+        return None
+
+    def zero_grad(self, set_to_none: bool = True) -> None:
+        """Drop the gradients (``set_to_none``, as torch's default) with a plain loop; else torch's ``zero_grad``."""
+        if not set_to_none or not speed_options.lean_adam:
+            return super().zero_grad(set_to_none)
+        for group in self.param_groups:
+            for p in group["params"]:
+                p.grad = None
+        return None
