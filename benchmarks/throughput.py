@@ -131,12 +131,13 @@ def matmul_replay(step: Callable[[], Any], device: th.device) -> tuple[Callable[
     recorder = _RecordMatmuls()
     with recorder:
         step()
-    calls = []
-    for func, layouts, kwargs in recorder.calls:
-        args = [
-            th.empty_strided(a[0], a[1], dtype=a[2], device=device).normal_() if isinstance(a, tuple) else a for a in layouts
-        ]
-        calls.append((func, args, kwargs))
+    def like(shape: th.Size, stride: tuple[int, ...], dtype: th.dtype) -> th.Tensor:  # broadcast views too
+        storage = 1 + sum((n - 1) * s for n, s in zip(shape, stride))
+        return th.randn(storage, dtype=dtype, device=device).as_strided(shape, stride)
+
+    calls = [
+        (func, [like(*a) if isinstance(a, tuple) else a for a in layouts], kwargs) for func, layouts, kwargs in recorder.calls
+    ]
 
     def replay() -> None:
         for func, args, kwargs in calls:
@@ -251,22 +252,21 @@ def measure_method(
     switches = ["lean_adam", *(["knn_partition"] if method in KNN_METHODS else [])]
     variants.update({name: update(**{name: False}) for name in switches})
     best = best_times(variants, device, repeats)
-    loop = {}
+    loop_pct, steps_per_s = {}, 0.0
     for label, acting in (("before", False), ("after", True)):
         with speed_options.override(lean_acting=acting):
             total, train, env = timed_learn(model, learn_steps, device)
-        loop[label] = (total, train, env)
+        loop_pct[label], steps_per_s = 100 * (total - train - env) / (train + env), learn_steps / total
     flops = count_flops(update())
-    total, train, env = loop["after"]
     return {
         "name": method + (f" ({compile_mode})" if compile_mode else ""),
         "size": size,
         "ms": {k: v * 1e3 for k, v in best.items()},
         "n_matmuls": n_matmuls,
         "gflop": flops / 1e9,
-        "loop_before": 100 * (loop["before"][0] - loop["before"][1] - loop["before"][2]) / (loop["before"][1] + loop["before"][2]),
-        "loop_after": 100 * (total - train - env) / (train + env),
-        "steps_per_s": learn_steps / total,
+        "loop_before": loop_pct["before"],
+        "loop_after": loop_pct["after"],
+        "steps_per_s": steps_per_s,
         "peak_mib": peak_memory_mib(device),
     }
 
@@ -478,7 +478,8 @@ def profile_method(method: str, size: str, device_name: str, threads: int, updat
     products = sum(getattr(e, key) for e in events if e.key in ("aten::mm", "aten::addmm", "aten::bmm", "aten::baddbmm"))
     calls = sum(e.count for e in events if e.key.startswith("aten::")) / updates
     top = sorted(events, key=lambda e: -getattr(e, key))[:rows]
-    lines = [f"{method} ({size}): {calls:.0f} aten calls per update; matrix products {100 * products / total:.1f}% of own time"]
+    share = 100 * products / total
+    lines = [f"{method} ({size}): {calls:.0f} aten calls per update; matrix products {share:.1f}% of own time"]
     lines += [
         f"    {e.key[:48]:<48}{getattr(e, key) / updates / 1e3:>8.3f} ms{e.count / updates:>7.1f} calls{100 * getattr(e, key) / total:>7.1f}%"
         for e in top
@@ -537,11 +538,12 @@ def main() -> None:
         for fn, *fn_args in jobs:
             r = _in_fresh_process(fn, *fn_args)
             ms = r["ms"]
+            gflops = r["gflop"] * 1e3 / ms["after"]
             print(
-                f"{r['name']:<20}{r['size']:>6}{ms['matmul']:>10.2f}{cell(ms, 'after', 10, True)}{cell(ms, 'before', 10, True)}"
-                f"{cell(ms, 'lean_adam', 11)}{cell(ms, 'knn_partition', 10)}{r['gflop']:>7.2f}{r['gflop'] * 1e3 / ms['after']:>8.0f}"
-                f"{r['loop_before']:>6.1f}/{r['loop_after']:>4.1f}%{r['steps_per_s']:>9.1f}{2e6 / r['steps_per_s'] / 3600:>7.1f}"
-                f"{r['peak_mib']:>6.0f}",
+                f"{r['name']:<20}{r['size']:>6}{ms['matmul']:>10.2f}{cell(ms, 'after', 10, True)}"
+                f"{cell(ms, 'before', 10, True)}{cell(ms, 'lean_adam', 11)}{cell(ms, 'knn_partition', 10)}"
+                f"{r['gflop']:>7.2f}{gflops:>8.0f}{r['loop_before']:>6.1f}/{r['loop_after']:>4.1f}%"
+                f"{r['steps_per_s']:>9.1f}{2e6 / r['steps_per_s'] / 3600:>7.1f}{r['peak_mib']:>6.0f}",
                 flush=True,
             )
     if args.ablations:

@@ -529,7 +529,8 @@ class URLBDDPG(DDPG):
 
     # save / load / fine-tune --------------------------------------------------------------------
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "reward_module", "_critic_params", "_critic_target_params", "_reward_metrics"]
+        excluded = ["reward_module", "_critic_params", "_critic_target_params", "_reward_metrics"]
+        return [*super()._excluded_save_params(), *excluded]
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         state_dicts, variables = super()._get_torch_save_params()

@@ -35,7 +35,7 @@ class RewardModule(nn.Module):
         self.lr = lr
 
     def make_optimizer(self, params: Any = None, lr: float | None = None) -> None:
-        """Create ``self.optimizer`` (:class:`~sb3_cic.speed.FusedAdam`) over ``params`` (default: all trainable parameters)."""
+        """Create ``self.optimizer`` (:class:`~sb3_cic.speed.FusedAdam`) over ``params`` (default: all trainable ones)."""
         params = [p for p in self.parameters() if p.requires_grad] if params is None else params
         self.optimizer = FusedAdam(params, lr=self.lr if lr is None else lr)
 
