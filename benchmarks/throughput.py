@@ -480,10 +480,9 @@ def profile_method(method: str, size: str, device_name: str, threads: int, updat
     top = sorted(events, key=lambda e: -getattr(e, key))[:rows]
     share = 100 * products / total
     lines = [f"{method} ({size}): {calls:.0f} aten calls per update; matrix products {share:.1f}% of own time"]
-    lines += [
-        f"    {e.key[:48]:<48}{getattr(e, key) / updates / 1e3:>8.3f} ms{e.count / updates:>7.1f} calls{100 * getattr(e, key) / total:>7.1f}%"
-        for e in top
-    ]
+    for e in top:
+        own = getattr(e, key)
+        lines.append(f"    {e.key[:48]:<48}{own / updates / 1e3:>8.3f} ms{e.count / updates:>7.1f} calls{100 * own / total:>7.1f}%")
     return "\n".join(lines)
 
 
