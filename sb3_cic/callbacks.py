@@ -92,9 +92,9 @@ class SkillGridSweepCallback(SkillSelectionCallback):
 
     def _start(self) -> None:
         prior = self.model.skill_prior
-        n = self.sweep_steps // self.window if self.window else None
-        self.candidates = prior.grid(n) if n else prior.grid(None)
-        self._window = self.window or max(1, self.sweep_steps // len(self.candidates))
+        n = max(1, self.sweep_steps // self.window) if self.window else None  # a sweep shorter than a window: 1
+        self.candidates = prior.grid(n)
+        self._window = max(1, min(self.window, self.sweep_steps) if self.window else self.sweep_steps // len(self.candidates))
         if len(self.candidates) < 1:
             raise ValueError("the skill grid sweep needs at least one candidate")
         self.model.warmup_with_policy = self.act_with_policy

@@ -37,6 +37,24 @@ def _find_skill_wrapper(env: gym.Env) -> SkillObservationWrapper | None:
     return None
 
 
+def env_id_of(env: GymEnv | str | None) -> str | None:
+    """The Gymnasium id of ``env`` (an id, an env or a VecEnv), or None when it has none."""
+    if env is None or isinstance(env, str):
+        return env
+    try:
+        spec = env.get_attr("spec", indices=[0])[0] if isinstance(env, VecEnv) else env.spec
+    except AttributeError:
+        spec = None
+    return None if spec is None else spec.id
+
+
+def package_version() -> str:
+    """This package's version (saved with each model)."""
+    from sb3_cic import __version__
+
+    return __version__
+
+
 def check_range(name: str, value: Any, low: float, high: float = float("inf"), low_open: bool = False) -> None:
     """Raise a ``ValueError`` naming ``name`` unless ``low <= value <= high`` (``low < value`` with ``low_open``).
 
@@ -111,6 +129,64 @@ def prepare_env(env: GymEnv | str, prior: SkillPrior | None, resample_every: int
     if wrapper.skill_dim != prior.dim:
         raise ValueError(f"the env's SkillObservationWrapper has skill_dim {wrapper.skill_dim}, the agent's prior {prior.dim}")
     return env
+
+
+class SavedModel:
+    """What :meth:`URLBDDPG.load` reads of a saved model before loading it, to explain a mistake.
+
+    :param data: the saved attributes (``load_from_zip_file``'s data)
+    """
+
+    def __init__(self, data: dict[str, Any]) -> None:
+        self.data = data
+        self.algorithm: str | None = data.get("algorithm")
+        self.prior: SkillPrior | None = data.get("skill_prior")
+        self.skill_dim = 0 if self.prior is None else self.prior.dim
+        self.obs_dim = int(data["observation_space"].shape[0])
+        self.action_shape = tuple(data["action_space"].shape)
+
+    def describe(self) -> str:
+        """``"the snapshot (CIC, pre-trained on URLB/walker-v0: state 24 + skill 64, action 6)"``."""
+        skill = f" + skill {self.skill_dim}" if self.skill_dim else ""
+        where = f"pre-trained on {self.data['env_id']}: " if self.data.get("env_id") else ""
+        action = int(np.prod(self.action_shape))
+        state = self.obs_dim - self.skill_dim
+        return f"the snapshot ({self.algorithm or 'a model'}, {where}state {state}{skill}, action {action})"
+
+    def version_note(self) -> str:
+        """A note on the package version that saved the snapshot when it is not this one (else empty)."""
+        saved = self.data.get("package_version")
+        if saved == package_version():
+            return ""
+        return f" (saved by {'sb3-cic ' + saved if saved else 'an earlier sb3-cic'}; this is sb3-cic {package_version()})"
+
+    def check_class(self, cls: type) -> None:
+        """``ValueError`` unless the snapshot was saved by ``cls``, one of its bases or a subclass of them."""
+        names = {c.__name__ for c in cls.__mro__}
+        if self.algorithm is not None and self.algorithm not in names:
+            raise ValueError(
+                f"{self.describe()} is a {self.algorithm} model: use {self.algorithm}.load_pretrained "
+                f"(or {self.algorithm}.load), not {cls.__name__}'s{self.version_note()}"
+            )
+
+    def check_env(self, env: GymEnv | str) -> GymEnv:
+        """``env`` prepared with the saved skill prior, or a ``ValueError`` saying how it differs from the snapshot's."""
+        name = env_id_of(env) or type(env).__name__
+        try:
+            env = prepare_env(env, self.prior, self.data.get("skill_resample_every", 50))
+        except ValueError as error:
+            if "skill_dim" not in str(error):
+                raise
+            raise ValueError(
+                f"{self.describe()}: {error}; pass the plain env (the model adds its own skill){self.version_note()}"
+            ) from error
+        obs_dim, action_shape = env.observation_space.shape[0], env.action_space.shape
+        if obs_dim != self.obs_dim or action_shape != self.action_shape:
+            raise ValueError(
+                f"{self.describe()} cannot act on {name} (state {obs_dim - self.skill_dim}, action "
+                f"{int(np.prod(action_shape))}): fine-tune a snapshot pre-trained on {name}'s domain{self.version_note()}"
+            )
+        return env
 
 
 class URLBDDPG(DDPG):
@@ -209,6 +285,11 @@ class URLBDDPG(DDPG):
         replay_buffer_class = replay_buffer_class or URLBReplayBuffer
         self._check_arguments(locals())
         policy_kwargs = normalize_policy_kwargs(policy_kwargs)
+        #: the id of the env the model was built on (None if it has none), and what saved it: read by
+        #: :meth:`load` to explain a snapshot loaded onto the wrong env or class
+        self.env_id = env_id_of(env)
+        self.algorithm = type(self).__name__
+        self.package_version = package_version()
         if _init_setup_model:  # ``load`` prepares the env itself, with the saved prior
             env = prepare_env(env, skill_prior, skill_resample_every)
         super().__init__(
@@ -384,11 +465,39 @@ class URLBDDPG(DDPG):
         returns them, for example in ``evaluate_policy`` or SB3's ``EvalCallback``): it appends
         :meth:`current_skill`. ``[state, skill]`` observations are used as they are.
         """
-        if self.skill_prior is not None and isinstance(observation, np.ndarray) and observation.ndim > 0:
-            if observation.shape[-1] == self.state_dim:
+        if isinstance(observation, np.ndarray) and observation.ndim > 0:
+            size = observation.shape[-1]
+            if self.skill_prior is not None and size == self.state_dim:
                 skill = np.broadcast_to(self.current_skill(), (*observation.shape[:-1], self.skill_dim))
                 observation = np.concatenate([observation, skill], axis=-1)
+            elif size not in (self.state_dim, self.observation_space.shape[0]):
+                skill = f" + skill {self.skill_dim}" if self.skill_dim else ""
+                raise ValueError(
+                    f"{type(self).__name__} acts on observations of state {self.state_dim}{skill} (env "
+                    f"{self.env_id or 'unknown'}), got shape {observation.shape}: is this env of another domain? "
+                    "model.wrap_env(env) wraps an env of the model's domain as the training env is"
+                )
         return super().predict(observation, state, episode_start, deterministic)
+
+    def wrap_env(self, env: GymEnv | str) -> GymEnv:
+        """``env`` (an id, an env or a VecEnv) wrapped as the training env is, for evaluation or SB3 callbacks.
+
+        A skill-based model adds its skill wrapper (:class:`~envs.SkillObservationWrapper`, or
+        :class:`~envs.VecSkillObservation` for a VecEnv of plain envs), with the skill fixed to the
+        fine-tuning skill once one is chosen; other models check the env only. ``predict`` also takes
+        plain state observations, so SB3's ``EvalCallback(plain_env)`` works without it.
+
+        :param env: environment id, environment or VecEnv
+        """
+        env = prepare_env(env, self.skill_prior, self.skill_resample_every)
+        if self.skill_prior is not None and self.finetune_skill is not None:
+            if isinstance(env, VecEnv):
+                env.env_method("set_skill", self.finetune_skill, True)
+            else:
+                wrapper = _find_skill_wrapper(env)
+                assert wrapper is not None
+                wrapper.set_skill(self.finetune_skill, True)
+        return env
 
     def set_env(self, env: GymEnv | str, force_reset: bool = True) -> None:
         """Use ``env`` for training from now on (see SB3's ``set_env``); a plain env gets the model's skill wrapper."""
@@ -549,17 +658,26 @@ class URLBDDPG(DDPG):
         force_reset: bool = True,
         **kwargs: Any,
     ) -> SelfURLBDDPG:
-        """Load a saved model (see SB3's ``load``); ``env`` may be an id and is wrapped with the saved skill prior."""
+        """Load a saved model (see SB3's ``load``); ``env`` may be an id and is wrapped with the saved skill prior.
+
+        A snapshot of another method, or one whose state or action size differs from ``env``'s, is a
+        ``ValueError`` that says which method or env it was saved with and what to do.
+        """
         if "policy_kwargs" in kwargs:  # compared with the saved ones, which are normalised
             kwargs["policy_kwargs"] = normalize_policy_kwargs(kwargs["policy_kwargs"])
+        data, _, _ = load_from_zip_file(path, device=device, custom_objects=custom_objects)
+        assert data is not None
+        saved = SavedModel(data)
+        saved.check_class(cls)
         if env is not None:
-            data, _, _ = load_from_zip_file(path, device=device, custom_objects=custom_objects)
-            assert data is not None
-            env = prepare_env(env, data.get("skill_prior"), data.get("skill_resample_every", 50))
-        return super().load(  # type: ignore[return-value]
-            path, env=env, device=device, custom_objects=custom_objects,
-            print_system_info=print_system_info, force_reset=force_reset, **kwargs,
-        )
+            env = saved.check_env(env)
+        try:
+            return super().load(  # type: ignore[return-value]
+                path, env=env, device=device, custom_objects=custom_objects,
+                print_system_info=print_system_info, force_reset=force_reset, **kwargs,
+            )
+        except RuntimeError as error:  # the networks' state dicts do not fit this class's
+            raise ValueError(f"{saved.describe()} does not fit {cls.__name__}: {error}{saved.version_note()}") from error
 
     @classmethod
     def load_pretrained(
