@@ -141,7 +141,12 @@ class URLBEvalCallback(EvalCallback):
     """
 
     def __init__(
-        self, eval_env: gym.Env | str, task: str | None = None, n_eval_episodes: int = 10, eval_freq: int = 10_000, **kwargs: Any
+        self,
+        eval_env: gym.Env | str,
+        task: str | None = None,
+        n_eval_episodes: int = 10,
+        eval_freq: int = 10_000,
+        **kwargs: Any,
     ) -> None:
         self._raw_eval_env = Monitor(gym.make(eval_env)) if isinstance(eval_env, str) else eval_env
         super().__init__(self._raw_eval_env, n_eval_episodes=n_eval_episodes, eval_freq=eval_freq, **kwargs)
