@@ -187,3 +187,14 @@ def test_speed_options_override_restores_and_refuses_unknown_names():
     with pytest.raises(ValueError, match="unknown speed option"):
         with speed_options.override(fast=True):
             pass
+
+
+def test_training_mode_reaches_every_module_after_the_critic_is_replaced(tiny):
+    model = URLBDDPG("MlpPolicy", "URLB/walker-stand-v0", **tiny)
+    policy = model.policy
+    policy.set_training_mode(False)  # lists the modules once
+    policy.critic = model.critic = policy.make_critic()  # as load_pretrained(finetune_critic="none") does
+    for mode in (False, True, False):
+        policy.set_training_mode(mode)
+        assert all(m.training == mode for m in (*policy.actor.modules(), *policy.critic.modules()))
+    assert not any(m.training for m in policy.critic_target.modules())
