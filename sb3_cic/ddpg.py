@@ -284,6 +284,9 @@ class URLBDDPG(DDPG):
     ) -> None:
         replay_buffer_class = replay_buffer_class or URLBReplayBuffer
         self._check_arguments(locals())
+        for name, value in vars(self).items():  # the methods' reward-module widths (cic_hidden_dim...), set before
+            if name.endswith("_hidden_dim") and value is not None:
+                check_positive_int(name, value)
         policy_kwargs = normalize_policy_kwargs(policy_kwargs)
         #: the id of the env the model was built on (None if it has none), and what saved it: read by
         #: :meth:`load` to explain a snapshot loaded onto the wrong env or class

@@ -258,6 +258,14 @@ def test_bad_arguments_are_refused_at_construction(cls, kwargs, name):
         cls("MlpPolicy", "Pendulum-v1", **small(**kwargs))
 
 
+@pytest.mark.parametrize("cls", [c for c in ALL if c is not URLBDDPG and c is not ProtoRL])
+@pytest.mark.parametrize("width", [0, -4, 2.5, "256"])
+def test_reward_module_width_must_be_a_positive_int(cls, width):
+    name = f"{cls.__name__.lower()}_hidden_dim"
+    with pytest.raises(ValueError, match=f"{name} must be an int >= 1"):
+        cls("MlpPolicy", "Pendulum-v1", **small(**{name: width}))
+
+
 @pytest.mark.parametrize("cls", ALL)
 def test_negative_total_timesteps_is_refused(cls):
     model = cls("MlpPolicy", "Pendulum-v1", **small())
