@@ -5,7 +5,8 @@
   algorithm loads with ``load_pretrained`` (see :class:`sb3_cic.zoo.PretrainedLoader`);
 * ``enjoy``, ``record-video``: rl_zoo3's scripts with our algorithms registered;
 * ``protocol``: the URLB protocol (:mod:`sb3_cic.protocol`);
-* ``report``: the score report of a study (:mod:`sb3_cic.evaluation`).
+* ``report``: the score report of a study (:mod:`sb3_cic.evaluation`);
+* ``skills``: a pre-trained policy under several skills, as one grid video and a plot (:mod:`sb3_cic.skill_video`).
 
 Options ``train`` and ``finetune`` add to rl-zoo's: ``--small`` (CPU-sized hyperparameters,
 :data:`sb3_cic.zoo.SMALL_HYPERPARAMS`); ``--eval-freq`` and ``--eval-episodes`` configure the yaml's
@@ -26,7 +27,7 @@ import yaml
 
 from sb3_cic import zoo
 
-USAGE = """usage: sb3-cic {train,finetune,enjoy,record-video,protocol,report} [options]
+USAGE = """usage: sb3-cic {train,finetune,enjoy,record-video,protocol,report,skills} [options]
 
   train         rl-zoo training (pre-training on URLB/<domain>-v0, or ddpg on a task id)
   finetune      rl-zoo training on a task id from a pre-trained model (-i model.zip)
@@ -34,6 +35,7 @@ USAGE = """usage: sb3-cic {train,finetune,enjoy,record-video,protocol,report} [o
   record-video  rl-zoo's record_video with the sb3-cic algorithms (needs MUJOCO_GL=egl or glfw)
   protocol      the URLB protocol: pre-train once, fine-tune on tasks x seeds, evaluate
   report        per-task and rliable aggregate scores of a study
+  skills        a snapshot's policy under n skills: one grid video and a plot (needs MUJOCO_GL=egl)
 
 Run `sb3-cic <command> --help` for the options (train/finetune/enjoy show rl-zoo's)."""
 
@@ -208,6 +210,10 @@ def main(argv: Sequence[str] | None = None) -> None:
         from sb3_cic.evaluation import main as report_main
 
         report_main(rest)
+    elif command == "skills":
+        from sb3_cic.skill_video import main as skills_main
+
+        skills_main(rest)
     else:
         raise SystemExit(f"unknown command {command!r}\n{USAGE}")
 
