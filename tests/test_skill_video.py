@@ -11,7 +11,9 @@ import pytest
 from sb3_cic import CIC, ICM
 from sb3_cic.skill_video import grid_frames, show_skills
 
-RENDER_PROBE = "import gymnasium as gym, envs; e = gym.make('URLB/point_mass-v0', render_mode='rgb_array'); e.reset(); e.render()"
+RENDER_PROBE = (
+    "import gymnasium as gym, envs; e = gym.make('URLB/point_mass-v0', render_mode='rgb_array'); e.reset(); e.render()"
+)
 
 
 def egl_or_skip() -> dict:
