@@ -163,7 +163,9 @@ class URLBEvalCallback(EvalCallback, ResumableCallback):
     """
 
     #: EvalCallback's attributes that a checkpoint keeps
-    _RECORDS = ("best_mean_reward", "last_mean_reward", "evaluations_results", "evaluations_timesteps", "evaluations_length")
+    _RECORDS = (
+        "best_mean_reward", "last_mean_reward", "evaluations_results", "evaluations_timesteps", "evaluations_length",
+    )
 
     def __init__(
         self, eval_env: gym.Env | str, task: str | None = None, n_eval_episodes: int = 10, eval_freq: int = 10_000, **kwargs: Any

@@ -5,6 +5,7 @@
   algorithm loads with ``load_pretrained`` (see :class:`sb3_cic.zoo.PretrainedLoader`);
 * ``enjoy``, ``record-video``: rl_zoo3's scripts with our algorithms registered;
 * ``protocol``: the URLB protocol (:mod:`sb3_cic.protocol`);
+* ``study``, ``status``: the whole study on Ray and its state (:mod:`sb3_cic.study`);
 * ``report``: the score report of a study (:mod:`sb3_cic.evaluation`).
 
 Options ``train`` and ``finetune`` add to rl-zoo's: ``--small`` (CPU-sized hyperparameters,
@@ -26,13 +27,15 @@ import yaml
 
 from sb3_cic import zoo
 
-USAGE = """usage: sb3-cic {train,finetune,enjoy,record-video,protocol,report} [options]
+USAGE = """usage: sb3-cic {train,finetune,enjoy,record-video,protocol,study,status,report} [options]
 
   train         rl-zoo training (pre-training on URLB/<domain>-v0, or ddpg on a task id)
   finetune      rl-zoo training on a task id from a pre-trained model (-i model.zip)
   enjoy         rl-zoo's enjoy with the sb3-cic algorithms
   record-video  rl-zoo's record_video with the sb3-cic algorithms (needs MUJOCO_GL=egl or glfw)
   protocol      the URLB protocol: pre-train once, fine-tune on tasks x seeds, evaluate
+  study         the whole study (methods x domains x tasks x seeds) as Ray tasks, resumable
+  status        runs done / running / failed / pending of a study
   report        per-task and rliable aggregate scores of a study
 
 Run `sb3-cic <command> --help` for the options (train/finetune/enjoy show rl-zoo's)."""
@@ -204,6 +207,12 @@ def main(argv: Sequence[str] | None = None) -> None:
         from sb3_cic.protocol import main as protocol_main
 
         protocol_main(rest)
+    elif command in ("study", "status"):
+        from sb3_cic.study import cli as study_cli
+
+        code = (study_cli.main if command == "study" else study_cli.status_main)(rest)
+        if code:
+            raise SystemExit(code)
     elif command == "report":
         from sb3_cic.evaluation import main as report_main
 

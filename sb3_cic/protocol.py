@@ -476,6 +476,10 @@ def run_protocol(
     for task in tasks or ():
         task_env_id(domain, task)  # a ValueError for an unknown task
     record_study_settings(study, settings, pretrain_seed)
+    if snapshot is None and from_scratch != zoo.has_reward_module(cls):  # the study's layout: listed for ``status``
+        from sb3_cic.study.graph import build_graph, record_runs
+
+        record_runs(study, build_graph([method], [domain], tasks, seeds, pretrain_seed))
     if not from_scratch:
         pretrain(study, method, domain, settings, seed=pretrain_seed, config=config)
     results = []

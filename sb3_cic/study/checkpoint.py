@@ -171,7 +171,9 @@ class RunFolder:
             with archive.open("state.pkl") as file:
                 state = pickle.load(file)
         if len(state["callbacks"]) != len(callbacks):
-            raise ValueError(f"{self.checkpoint} holds {len(state['callbacks'])} callbacks' states, the run has {len(callbacks)}")
+            raise ValueError(
+                f"{self.checkpoint} holds {len(state['callbacks'])} callbacks' states, the run has {len(callbacks)}"
+            )
         set_vec_env_state(model.get_env(), state["env"], model._last_obs)  # type: ignore[arg-type]
         for callback, saved in zip(callbacks, state["callbacks"]):
             set_callback_state(callback, saved)
@@ -273,7 +275,7 @@ def set_vec_env_state(venv: VecEnv | None, state: dict[str, Any], last_obs: np.n
         if last_obs is not None and observations:
             obs = observations[0]
             if not np.array_equal(np.asarray(last_obs[i][: obs.size], dtype=np.float32), obs.astype(np.float32)):
-                raise RuntimeError("the checkpoint's episode start could not be reproduced: the env differs from the saved one")
+                raise RuntimeError("the checkpoint's episode start could not be reproduced: the env is not the saved one")
     for wrapper, saved in zip(wrappers, state["wrappers"], strict=True):
         if saved is not None:
             wrapper.set_checkpoint_state(saved)
