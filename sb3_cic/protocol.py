@@ -27,6 +27,7 @@ import csv
 import json
 import math
 import time
+import zipfile
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar, Sequence
@@ -153,6 +154,18 @@ def pretrain_dir(study: str | Path, method: str, domain: str) -> Path:
 def finetune_dir(study: str | Path, label: str, task: str, seed: int) -> Path:
     """Folder of a fine-tuning run (``task``: the URLB task name, ``walker_flip``)."""
     return Path(study) / "finetune" / label / task / f"seed_{seed}"
+
+
+def check_snapshot(path: Path) -> None:
+    """``ValueError`` unless ``path`` is a readable saved model (a zip with SB3's ``data``, CRCs intact)."""
+    if not path.is_file():
+        raise ValueError(f"the snapshot {path} is missing (its pre-training's result.json lists it)")
+    try:
+        with zipfile.ZipFile(path) as archive:
+            if "data" not in archive.namelist() or archive.testzip() is not None:
+                raise zipfile.BadZipFile("no readable 'data' entry")
+    except (OSError, zipfile.BadZipFile) as error:
+        raise ValueError(f"the snapshot {path} is corrupt ({error!r}); pre-train again in a new study folder") from error
 
 
 def check_study_settings(study: str | Path, settings: Settings, pretrain_seed: int) -> dict[str, Any]:
@@ -360,8 +373,8 @@ def finetune(
     if folder.done:
         return json.loads(folder.result.read_text())
     snapshot_path = pretrain_dir(study, method, domain) / f"snapshot_{snapshot}.zip"
-    if not from_scratch and not snapshot_path.is_file():
-        raise ValueError(f"the snapshot {snapshot_path} is missing (its pre-training's result.json lists it)")
+    if not from_scratch:
+        check_snapshot(snapshot_path)
     checkpoint = folder.read_meta()  # a ValueError for a corrupt or missing checkpoint, before any work
     folder.path.mkdir(parents=True, exist_ok=True)
     _set_threads(settings)

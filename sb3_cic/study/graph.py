@@ -14,7 +14,7 @@ from typing import Any, Sequence
 from envs.tasks import DOMAIN_TASKS
 from sb3_cic import zoo
 from sb3_cic.constants import EXPERT_SCORES
-from sb3_cic.protocol import Settings, check_study_settings, finetune_dir, pretrain_dir, task_env_id, task_name
+from sb3_cic.protocol import Settings, check_snapshot, check_study_settings, finetune_dir, pretrain_dir, task_env_id, task_name
 from sb3_cic.study.checkpoint import RunFolder, write_json
 
 #: the URLB domains (those of the expert-scored tasks): ``--domains all``
@@ -144,9 +144,7 @@ def check_study(study: str | Path, runs: Sequence[Run], settings: Settings, pret
         if folder.done:
             if run.task is None:  # its fine-tunings start from the final snapshot
                 result = json.loads(folder.result.read_text())
-                snapshot = folder.path / f"snapshot_{result['steps']}.zip"
-                if not snapshot.is_file():
-                    raise ValueError(f"the snapshot {snapshot} of a finished pre-training is missing")
+                check_snapshot(folder.path / f"snapshot_{result['steps']}.zip")
             continue
         folder.read_meta()  # a ValueError for a corrupt or missing checkpoint
         todo.append(run)
@@ -191,7 +189,11 @@ def run_state(folder: RunFolder) -> tuple[str, dict[str, Any]]:
     if folder.done:
         return "done", {}
     progress = folder.read_progress() or {}
-    info: dict[str, Any] = {"checkpoint_step": progress.get("checkpoint_step", 0)}
+    try:
+        meta = folder.read_meta()
+        info: dict[str, Any] = {"checkpoint_step": meta["step"] if meta else 0}
+    except ValueError as error:  # corrupt or lost: the next start of the run refuses it
+        info = {"checkpoint_step": f"unusable ({error})"}
     if folder.error.exists():
         lines = folder.error.read_text().strip().splitlines()
         return "failed", {**info, "error": lines[-1] if lines else "", "traceback": str(folder.error)}
