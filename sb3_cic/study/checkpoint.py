@@ -345,7 +345,14 @@ class RunCheckpointCallback(BaseCallback):
         self.written: list[tuple[int, float, int]] = []
 
     def _init_callback(self) -> None:
-        _vec_layers(self.model.get_env())  # a ValueError now rather than at the first checkpoint
+        if self.every:  # a ValueError now rather than at the first checkpoint
+            _, dummy = _vec_layers(self.model.get_env())
+            for env in dummy.envs:
+                if not any(_has(layer, "get_checkpoint_state") for layer in _layers(env)):
+                    raise ValueError(
+                        f"{env} cannot checkpoint its episode start (no get_checkpoint_state, as URLB's DMCEnv has): "
+                        "use checkpoint_every=0"
+                    )
         self._last = self.num_timesteps
         self._start = time.perf_counter()
 
