@@ -228,3 +228,33 @@ def test_bad_input_is_refused_before_any_work(study: Path, tmp_path: Path, chang
     with pytest.raises(ValueError, match=message):
         run_study(folder, progress_bar=False, **kwargs)
     assert _files(folder) == before  # nothing changed
+
+
+def test_checkpoint_write_is_atomic(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    """A write that dies half-way leaves the previous checkpoint readable and loadable."""
+    from sb3_cic import URLBDDPG
+    from sb3_cic.study import checkpoint as checkpoint_module
+    from sb3_cic.study.checkpoint import RunFolder
+
+    model = URLBDDPG("MlpPolicy", "URLB/walker-stand-v0", policy_kwargs={"hidden_dim": 32}, batch_size=32,
+                     buffer_size=2000, learning_starts=500, seed=0, device="cpu")
+    model.learn(1000)  # one episode: an episode boundary
+    folder = RunFolder(tmp_path / "run")
+    folder.start()
+    folder.save_checkpoint(model, [], {"elapsed_s": 1.0})
+    first = folder.checkpoint.read_bytes()
+
+    def dies_half_way(obj, file, protocol=None):
+        file.write(b"\0" * 1000)
+        raise KeyboardInterrupt("killed during the write")
+
+    model.num_timesteps = 2000  # what a later checkpoint would record
+    monkeypatch.setattr(checkpoint_module.pickle, "dump", dies_half_way)
+    with pytest.raises(KeyboardInterrupt):
+        folder.save_checkpoint(model, [], {"elapsed_s": 2.0})
+    monkeypatch.undo()
+    assert folder.checkpoint_tmp.exists() and folder.checkpoint.read_bytes() == first
+    assert folder.read_meta()["step"] == 1000 and folder.read_progress()["checkpoint_step"] == 1000
+    loaded = folder.load_model(URLBDDPG, "URLB/walker-stand-v0", device="cpu")
+    folder.restore(loaded, [])
+    assert loaded.num_timesteps == 1000 and loaded.replay_buffer.size() == 1000
