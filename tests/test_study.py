@@ -147,7 +147,7 @@ def test_ray_worker_killed_mid_study_is_retried(ray_instance, tmp_path: Path):
     settings = replace(SETTINGS, finetune_steps=2000)
     study = tmp_path / "study"
     folder = study / "finetune" / "ddpg" / "walker_stand" / "seed_0"
-    killed = []
+    killed, seen = [], []
 
     def kill_worker_after_first_checkpoint() -> None:
         deadline = time.monotonic() + 120
@@ -155,6 +155,7 @@ def test_ray_worker_killed_mid_study_is_retried(ray_instance, tmp_path: Path):
             progress = folder / "progress.json"
             if (folder / "checkpoint.zip").exists() and progress.exists():
                 pid = json.loads(progress.read_text())["pid"]
+                seen.append(status_report(study)[0])
                 os.kill(pid, signal.SIGKILL)  # the worker process running the run (started by this test's Ray)
                 killed.append(pid)
                 return
@@ -167,6 +168,8 @@ def test_ray_worker_killed_mid_study_is_retried(ray_instance, tmp_path: Path):
     finally:
         watcher.join()
     assert killed and statuses == [{"run": "ddpg walker_stand seed 0", "state": "done", "error": None}]
+    assert "1 runs, 0 done, 1 running" in seen[0] and "ddpg walker_stand seed 0: running on" in seen[0]
+    assert f"(pid {killed[0]}), last checkpoint at step 1000" in seen[0]
     result = json.loads((folder / "result.json").read_text())
     assert result["resumed_from_step"] == 1000
     run_protocol(tmp_path / "uninterrupted", "ddpg", "walker", tasks=["stand"], seeds=[0], settings=settings)
