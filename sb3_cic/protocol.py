@@ -257,7 +257,8 @@ def pretrain(
     seed: int = 0,
     config: str | Path | None = None,
 ) -> dict[str, Any]:
-    """Pre-train ``method`` on ``URLB/<domain>-v0`` once (skipped if its ``result.json`` exists).
+    """Pre-train ``method`` on ``URLB/<domain>-v0`` once (skipped if its ``result.json`` exists; an unfinished
+    run resumes from its checkpoint, written every ``settings.pretrain_checkpoint_every`` steps).
 
     :param study: study folder
     :param method: rl-zoo name of an unsupervised method (``cic``...)
@@ -340,7 +341,8 @@ def finetune(
     from_scratch: bool | None = None,
     config: str | Path | None = None,
 ) -> dict[str, Any]:
-    """One fine-tuning run (or a from-scratch run for DDPG), skipped if its ``result.json`` exists.
+    """One fine-tuning run (or a from-scratch run for DDPG), skipped if its ``result.json`` exists; an unfinished
+    run resumes from its checkpoint (written every ``settings.finetune_checkpoint_every`` steps).
 
     :param study: study folder (the pre-training must be done unless ``from_scratch``)
     :param method: rl-zoo name of the method

@@ -41,7 +41,11 @@ CHECKPOINT_FORMAT = 1
 
 
 def write_json(path: Path, data: dict[str, Any]) -> None:
-    """Write ``data`` to ``path`` atomically (temporary file + rename)."""
+    """Write ``data`` to ``path`` atomically (temporary file + rename).
+
+    :param path: the file
+    :param data: JSON-able content
+    """
     tmp = path.with_name(path.name + ".tmp")
     tmp.write_text(json.dumps(data, indent=2, default=float))
     os.replace(tmp, path)
@@ -97,7 +101,10 @@ class RunFolder:
         return meta
 
     def start(self, checkpoint_step: int = 0) -> None:
-        """Mark the run as running here (``progress.json``) and forget an earlier failure."""
+        """Mark the run as running here (``progress.json``) and forget an earlier failure.
+
+        :param checkpoint_step: the step of the checkpoint it resumes from (0: none)
+        """
         self.path.mkdir(parents=True, exist_ok=True)
         self.error.unlink(missing_ok=True)
         self._write_progress(checkpoint_step)
@@ -109,13 +116,19 @@ class RunFolder:
         )
 
     def finish(self, result: dict[str, Any]) -> None:
-        """Write ``result.json``, then delete the checkpoint and ``progress.json``."""
+        """Write ``result.json``, then delete the checkpoint and ``progress.json``.
+
+        :param result: the run's result
+        """
         write_json(self.result, result)
         for path in (self.checkpoint, self.checkpoint_tmp, self.progress, self.error):
             path.unlink(missing_ok=True)
 
     def fail(self, traceback: str) -> None:
-        """Record the run as failed: ``error.txt`` holds the traceback."""
+        """Record the run as failed: ``error.txt`` holds the traceback (the checkpoint stays, to resume from).
+
+        :param traceback: the formatted traceback
+        """
         self.path.mkdir(parents=True, exist_ok=True)
         self.error.write_text(traceback)
 
@@ -183,7 +196,10 @@ class RunFolder:
 
 # random states -------------------------------------------------------------------------------
 def rng_state(model: BaseAlgorithm) -> dict[str, Any]:
-    """The random states a run draws from: Python, numpy (action noise, replay sampling), torch and the model's spaces."""
+    """The random states a run draws from: Python, numpy (action noise, replay sampling), torch and the model's spaces.
+
+    :param model: the model (its action space draws the warm-up's random actions)
+    """
     return {
         "python": random.getstate(),
         "numpy": np.random.get_state(),
@@ -195,7 +211,11 @@ def rng_state(model: BaseAlgorithm) -> dict[str, Any]:
 
 
 def set_rng_state(model: BaseAlgorithm, state: dict[str, Any]) -> None:
-    """Restore what :func:`rng_state` returned."""
+    """Restore what :func:`rng_state` returned.
+
+    :param model: the model
+    :param state: the saved random states
+    """
     random.setstate(state["python"])
     np.random.set_state(state["numpy"])
     th.set_rng_state(state["torch"])
@@ -223,6 +243,8 @@ def env_state(env: gym.Env) -> list[Any]:
     """The checkpoint state of each layer of ``env`` (its ``get_checkpoint_state``, None for a layer without).
 
     Taken just after a reset: :class:`~envs.dmc.DMCEnv` saves the random state its episode started from.
+
+    :param env: a gymnasium env and its wrappers
     """
     return [layer.get_checkpoint_state() if _has(layer, "get_checkpoint_state") else None for layer in _layers(env)]
 
@@ -251,7 +273,10 @@ def _vec_layers(venv: VecEnv) -> tuple[list[VecEnvWrapper], DummyVecEnv]:
 
 
 def vec_env_state(venv: VecEnv | None) -> dict[str, Any]:
-    """The checkpoint state of a VecEnv (of its VecEnv wrappers and of each env), taken at an episode boundary."""
+    """The checkpoint state of a VecEnv (of its VecEnv wrappers and of each env), taken at an episode boundary.
+
+    :param venv: the model's training env (a DummyVecEnv, possibly wrapped)
+    """
     assert venv is not None
     wrappers, dummy = _vec_layers(venv)
     return {
@@ -303,13 +328,20 @@ class ResumableCallback(BaseCallback):
 
 
 def callback_state(callback: BaseCallback) -> dict[str, Any]:
-    """The state of ``callback`` a checkpoint saves: ``n_calls``, plus :class:`ResumableCallback`'s own."""
+    """The state of ``callback`` a checkpoint saves: ``n_calls``, plus :class:`ResumableCallback`'s own.
+
+    :param callback: any SB3 callback
+    """
     own = callback.get_checkpoint_state() if isinstance(callback, ResumableCallback) else {}
     return {"class": type(callback).__name__, "n_calls": callback.n_calls, "state": own}
 
 
 def set_callback_state(callback: BaseCallback, state: dict[str, Any]) -> None:
-    """Restore what :func:`callback_state` returned (the callback must be of the same class)."""
+    """Restore what :func:`callback_state` returned (the callback must be of the same class).
+
+    :param callback: the run's callback
+    :param state: its saved state
+    """
     if type(callback).__name__ != state["class"]:
         raise ValueError(f"the checkpoint saved a {state['class']}, the run has a {type(callback).__name__}")
     callback.n_calls = state["n_calls"]

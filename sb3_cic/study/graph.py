@@ -153,7 +153,11 @@ def check_study(study: str | Path, runs: Sequence[Run], settings: Settings, pret
 
 def record_runs(study: str | Path, runs: Sequence[Run]) -> None:
     """Add ``runs`` to the runs listed in ``study.json`` (which :func:`~sb3_cic.protocol.record_study_settings`
-    wrote), for ``sb3-cic status``."""
+    wrote), for ``sb3-cic status``.
+
+    :param study: study folder
+    :param runs: the runs of a command
+    """
     path = Path(study) / "study.json"
     data = json.loads(path.read_text())
     listed = {tuple(run) for run in data.get("runs", [])}
@@ -163,7 +167,10 @@ def record_runs(study: str | Path, runs: Sequence[Run]) -> None:
 
 
 def study_runs(study: str | Path) -> list[Run]:
-    """The runs listed in ``study.json`` (:func:`record_runs`); ``ValueError`` if the folder is no study."""
+    """The runs listed in ``study.json`` (:func:`record_runs`); ``ValueError`` if the folder is no study.
+
+    :param study: study folder
+    """
     path = Path(study) / "study.json"
     if not path.is_file():
         raise ValueError(f"{study} is not a study folder (no study.json)")
@@ -182,6 +189,8 @@ def _alive(pid: int) -> bool:
 
 def run_state(folder: RunFolder) -> tuple[str, dict[str, Any]]:
     """The state of a run (one of :data:`STATES`) and what its folder says: ``checkpoint_step``, ``error``...
+
+    :param folder: the run's folder
 
     ``running``: its ``progress.json`` names a live process (on this host) or another host; a run whose process
     is gone is ``pending`` (it resumes from its checkpoint when started again).
