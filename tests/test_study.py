@@ -103,18 +103,9 @@ def test_study_on_ray_equals_sequential_protocol(study: Path, tmp_path: Path):
     main(["status", str(study)])  # exit code 0: no SystemExit
 
 
-def test_sigkill_after_first_checkpoint_resumes_identically(tmp_path: Path):
-    """A pre-training killed with SIGKILL after its first checkpoint, started again by the same command, ends with
-    the same networks (bit for bit) and the same fine-tuning returns as the uninterrupted run (one torch thread)."""
-    settings = replace(SETTINGS, pretrain_steps=2000)
-    run_protocol(tmp_path / "uninterrupted", "cic", "walker", tasks=["stand"], seeds=[0], settings=settings)
-
-    study = tmp_path / "killed"
-    command = [sys.executable, "-m", "sb3_cic.cli", "protocol", "--method", "cic", "--domain", "walker", "--tasks", "stand",
-               "--seeds", "0", "--study", str(study), "--pretrain-steps", "2000", "--finetune-steps", "1000", *FLAGS]
-    env = {**os.environ, "OMP_NUM_THREADS": "1", "MUJOCO_GL": "disable"}
+def _kill_after_checkpoint(command: list[str], env: dict[str, str], checkpoint: Path) -> None:
+    """Start ``command`` and SIGKILL it once ``checkpoint`` exists."""
     process = subprocess.Popen(command, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    checkpoint = study / "pretrain" / "cic_walker" / "checkpoint.zip"
     try:
         deadline = time.monotonic() + 120
         while not checkpoint.exists() and process.poll() is None and time.monotonic() < deadline:
@@ -124,20 +115,45 @@ def test_sigkill_after_first_checkpoint_resumes_identically(tmp_path: Path):
     finally:
         process.kill()
         process.wait()
-    assert not (study / "pretrain" / "cic_walker" / "result.json").exists()
+
+
+def test_sigkill_after_first_checkpoint_resumes_identically(tmp_path: Path):
+    """``sb3-cic protocol`` killed with SIGKILL after the first checkpoint of the pre-training, started again, killed
+    again after the first checkpoint of the fine-tuning (in the middle of its skill sweep: learning_starts 1,500),
+    started again: the same networks (bit for bit), sweep and evaluations as the uninterrupted run (one torch thread)."""
+    settings = replace(SETTINGS, pretrain_steps=2000, finetune_steps=2000, learning_starts=1500)
+    run_protocol(tmp_path / "uninterrupted", "cic", "walker", tasks=["stand"], seeds=[0], settings=settings)
+
+    study = tmp_path / "killed"
+    command = [sys.executable, "-m", "sb3_cic.cli", "protocol", "--method", "cic", "--domain", "walker", "--tasks", "stand",
+               "--seeds", "0", "--study", str(study), "--pretrain-steps", "2000", "--finetune-steps", "2000", *FLAGS,
+               "--learning-starts", "1500"]
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "MUJOCO_GL": "disable"}
+    pretrain = study / "pretrain" / "cic_walker"
+    finetune = study / "finetune" / "cic" / "walker_stand" / "seed_0"
+    _kill_after_checkpoint(command, env, pretrain / "checkpoint.zip")
+    assert not (pretrain / "result.json").exists()
     text, finished = status_report(study)  # the killed run waits with its checkpoint
     assert not finished and "pretrain cic walker: pending, last checkpoint at step 1000" in text
+    _kill_after_checkpoint(command, env, finetune / "checkpoint.zip")
+    assert (pretrain / "result.json").exists() and not (finetune / "result.json").exists()
 
     subprocess.run(command, env=env, check=True, stdout=subprocess.DEVNULL)
-    pre = json.loads((study / "pretrain" / "cic_walker" / "result.json").read_text())
-    assert pre["resumed_from_step"] == 1000 and not checkpoint.exists()
+    pre = json.loads((pretrain / "result.json").read_text())
+    assert pre["resumed_from_step"] == 1000 and not list(study.rglob("checkpoint*"))
     from sb3_cic import CIC
 
-    killed = CIC.load(study / "pretrain" / "cic_walker" / "snapshot_2000.zip", device="cpu")
+    killed = CIC.load(pretrain / "snapshot_2000.zip", device="cpu")
     uninterrupted = CIC.load(tmp_path / "uninterrupted" / "pretrain" / "cic_walker" / "snapshot_2000.zip", device="cpu")
     for module in ("policy", "reward_module"):
         a, b = getattr(killed, module).state_dict(), getattr(uninterrupted, module).state_dict()
         assert a.keys() == b.keys() and all(th.equal(a[k], b[k]) for k in a), module
+    result = _results(study)[("cic", "walker_stand", 0)]
+    expected = _results(tmp_path / "uninterrupted")[("cic", "walker_stand", 0)]
+    assert result["resumed_from_step"] == 1000 and expected["resumed_from_step"] == 0
+    for key in ("final_return", "finetune_skill", "skill_sweep", "n_evaluations"):
+        assert result[key] == expected[key], key
+    assert len(result["skill_sweep"]) == 15  # 1,500 steps of 100-step windows: the checkpoint fell in the sweep
     assert _curves(study) == _curves(tmp_path / "uninterrupted")
 
 
