@@ -184,7 +184,7 @@ def test_ray_worker_killed_mid_study_is_retried(ray_instance, tmp_path: Path):
     finally:
         watcher.join()
     assert killed and statuses == [{"run": "ddpg walker_stand seed 0", "state": "done", "error": None}]
-    assert "1 runs, 0 done, 1 running" in seen[0] and "ddpg walker_stand seed 0: running on" in seen[0]
+    assert "1 run, 0 done, 1 running" in seen[0] and "ddpg walker_stand seed 0: running on" in seen[0]
     assert f"(pid {killed[0]}), last checkpoint at step 1000" in seen[0]
     result = json.loads((folder / "result.json").read_text())
     assert result["resumed_from_step"] == 1000

@@ -233,7 +233,8 @@ def status_report(study: str | Path) -> tuple[str, bool]:
     total = Counter()
     for counter in counts.values():
         total.update(counter)
-    lines = [f"{study}: {len(runs)} runs, " + ", ".join(f"{total[s]} {s}" for s in STATES), ""]
+    counted = f"{len(runs)} run{'' if len(runs) == 1 else 's'}"
+    lines = [f"{study}: {counted}, " + ", ".join(f"{total[s]} {s}" for s in STATES), ""]
     lines.append(f"| method | domain | {' | '.join(STATES)} |")
     lines.append("|---|---|" + "---:|" * len(STATES))
     for (method, domain), counter in sorted(counts.items()):
