@@ -80,6 +80,8 @@ class DMCEnv(gym.Env):
         # array operands: cheaper in ufuncs than Python scalars
         self._act_ones = np.ones(act_spec.shape, dtype=np.float64)
         self._act_minus_ones = -self._act_ones
+        #: the task's random state as the last reset found it (see :meth:`get_checkpoint_state`)
+        self._reset_random_state: tuple | dict | None = None
 
     def _physics_clamps_controls(self) -> bool:
         """Whether MuJoCo itself clamps every control to exactly the action spec's bounds.
@@ -127,8 +129,30 @@ class DMCEnv(gym.Env):
         super().reset(seed=seed)
         if seed is not None:
             self._random_state().seed(seed)
+        self._reset_random_state = self._random_state().get_state()
         time_step = self._env.reset()
         return self._flatten(time_step.observation), {}
+
+    # checkpoints ---------------------------------------------------------------------------
+    def get_checkpoint_state(self) -> dict[str, Any]:
+        """What a checkpoint taken just after a reset (at an episode boundary) needs of this env.
+
+        The episode's start is a function of the task's random state alone (the physics is reset
+        and re-initialised from it), so the random state the last reset started from is enough:
+        :meth:`set_checkpoint_state` replays that reset.
+        """
+        if self._reset_random_state is None:
+            raise ValueError("the environment was never reset: there is no episode start to checkpoint")
+        return {"reset_random_state": self._reset_random_state}
+
+    def set_checkpoint_state(self, state: dict[str, Any]) -> np.ndarray:
+        """Put the env back at the episode start of :meth:`get_checkpoint_state`; return its observation.
+
+        :param state: what :meth:`get_checkpoint_state` returned
+        """
+        self._random_state().set_state(state["reset_random_state"])
+        self._reset_random_state = state["reset_random_state"]
+        return self._flatten(self._env.reset().observation)
 
     def _control(self, action: np.ndarray) -> np.ndarray:
         """The physics control of ``action``: clipped to [-1, 1], then ``mid + a * half_range``.

@@ -7,6 +7,7 @@ plain envs. Both keep each env's skill in a :class:`SkillSchedule` and answer th
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Sequence
 from typing import Any
 
@@ -83,6 +84,17 @@ class SkillSchedule:
         """``[state, skill]`` as float32."""
         return np.concatenate([state, self.skill]).astype(np.float32, copy=False)
 
+    def get_state(self) -> dict[str, Any]:
+        """The schedule's state (random generator, skill, mode, step count), for checkpoints."""
+        return {"rng": copy.deepcopy(self.rng), "skill": self.skill.copy(), "fixed": self.fixed, "steps": self.steps}
+
+    def set_state(self, state: dict[str, Any]) -> None:
+        """Restore what :meth:`get_state` returned."""
+        self.rng = copy.deepcopy(state["rng"])
+        self.skill = np.array(state["skill"], copy=True)
+        self.fixed = bool(state["fixed"])
+        self.steps = int(state["steps"])
+
 
 class SkillObservationWrapper(gym.Wrapper):
     """Own the current skill of an unsupervised RL agent and append it to the observation.
@@ -139,6 +151,14 @@ class SkillObservationWrapper(gym.Wrapper):
     def set_fixed(self, fixed: bool) -> None:
         """Switch between a fixed skill (True) and resampling (False)."""
         self.schedule.set_fixed(fixed)
+
+    def get_checkpoint_state(self) -> dict[str, Any]:
+        """The skill schedule's state, for checkpoints."""
+        return self.schedule.get_state()
+
+    def set_checkpoint_state(self, state: dict[str, Any]) -> None:
+        """Restore what :meth:`get_checkpoint_state` returned."""
+        self.schedule.set_state(state)
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
         # options only when given: envs with the older ``reset(seed=None)`` signature keep working
@@ -202,6 +222,15 @@ class VecSkillObservation(VecEnvWrapper):
                     info["terminal_observation"] = schedule.observe(info["terminal_observation"])
                 schedule.reset()
         return self._observe(states), rewards, dones, infos  # type: ignore[arg-type]
+
+    def get_checkpoint_state(self) -> dict[str, Any]:
+        """The skill schedules' states, for checkpoints."""
+        return {"schedules": [schedule.get_state() for schedule in self.schedules]}
+
+    def set_checkpoint_state(self, state: dict[str, Any]) -> None:
+        """Restore what :meth:`get_checkpoint_state` returned."""
+        for schedule, saved in zip(self.schedules, state["schedules"], strict=True):
+            schedule.set_state(saved)
 
     def _indices(self, indices: None | int | Sequence[int]) -> list[int]:
         if indices is None:

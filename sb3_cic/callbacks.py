@@ -2,20 +2,22 @@
 
 from __future__ import annotations
 
+import copy
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from stable_baselines3.common.callbacks import BaseCallback, EvalCallback
+from stable_baselines3.common.callbacks import EvalCallback
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import DummyVecEnv
 
 from envs.skill_wrapper import SkillObservationWrapper
 
 from sb3_cic.constants import normalized_score
+from sb3_cic.study.checkpoint import ResumableCallback, env_state, set_env_state
 
 
-class SkillSelectionCallback(BaseCallback):
+class SkillSelectionCallback(ResumableCallback):
     """Base of the callbacks that choose the skill a skill-based agent is fine-tuned with.
 
     Once a skill is chosen it is stored in ``model.finetune_skill`` (saved with the model) and fixed
@@ -25,6 +27,8 @@ class SkillSelectionCallback(BaseCallback):
     """
 
     def _on_training_start(self) -> None:
+        if self.resumed:  # the checkpoint restored the selection, the skill and the envs
+            return
         if self.model.finetune_skill is not None:
             self.model.set_skill(self.model.finetune_skill, fixed=True)
             self.done = True
@@ -46,6 +50,12 @@ class SkillSelectionCallback(BaseCallback):
 
     def _on_step(self) -> bool:
         return True
+
+    def get_checkpoint_state(self) -> dict[str, Any]:
+        return {"done": self.done}
+
+    def set_checkpoint_state(self, state: dict[str, Any]) -> None:
+        self.done = state["done"]
 
 
 class FixedSkillCallback(SkillSelectionCallback):
@@ -124,8 +134,20 @@ class SkillGridSweepCallback(SkillSelectionCallback):
             self.choose(self.results[best][0])
         return True
 
+    def get_checkpoint_state(self) -> dict[str, Any]:
+        state = {**super().get_checkpoint_state(), "results": self.results}
+        if hasattr(self, "candidates"):  # the sweep has started
+            state["sweep"] = (self.candidates, self._window, self._index, self._steps, self._return)
+        return state
 
-class URLBEvalCallback(EvalCallback):
+    def set_checkpoint_state(self, state: dict[str, Any]) -> None:
+        super().set_checkpoint_state(state)
+        self.results = state["results"]
+        if "sweep" in state:
+            self.candidates, self._window, self._index, self._steps, self._return = state["sweep"]
+
+
+class URLBEvalCallback(EvalCallback, ResumableCallback):
     """URLB evaluation: deterministic episodes every ``eval_freq`` steps and at step 0, normalised score.
 
     Logs ``eval/mean_reward`` and, when the task has an expert score, ``eval/normalized_score``
@@ -139,6 +161,11 @@ class URLBEvalCallback(EvalCallback):
     :param eval_freq: env steps between evaluations (10,000)
     :param kwargs: other :class:`~stable_baselines3.common.callbacks.EvalCallback` arguments
     """
+
+    #: EvalCallback's attributes that a checkpoint keeps
+    _RECORDS = (
+        "best_mean_reward", "last_mean_reward", "evaluations_results", "evaluations_timesteps", "evaluations_length",
+    )
 
     def __init__(
         self,
@@ -162,7 +189,20 @@ class URLBEvalCallback(EvalCallback):
         super()._init_callback()
 
     def _on_training_start(self) -> None:
-        self._evaluate()
+        if not self.resumed:  # a resumed run evaluated step 0 before
+            self._evaluate()
+
+    def get_checkpoint_state(self) -> dict[str, Any]:
+        """The evaluation history, EvalCallback's records and the eval env's state (taken after an evaluation's
+        last reset, so at an episode start)."""
+        records = {key: copy.deepcopy(getattr(self, key)) for key in self._RECORDS}
+        return {"history": list(self.history), "records": records, "env": env_state(self._raw_eval_env)}
+
+    def set_checkpoint_state(self, state: dict[str, Any]) -> None:
+        self.history = list(state["history"])
+        for key, value in state["records"].items():
+            setattr(self, key, value)
+        set_env_state(self._raw_eval_env, state["env"])
 
     def _on_step(self) -> bool:
         if self.eval_freq > 0 and self.n_calls % self.eval_freq == 0:

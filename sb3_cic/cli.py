@@ -5,6 +5,7 @@
   algorithm loads with ``load_pretrained`` (see :class:`sb3_cic.zoo.PretrainedLoader`);
 * ``enjoy``, ``record-video``: rl_zoo3's scripts with our algorithms registered;
 * ``protocol``: the URLB protocol (:mod:`sb3_cic.protocol`);
+* ``study``, ``status``: the whole study on Ray and its state (:mod:`sb3_cic.study`);
 * ``report``: the score report of a study (:mod:`sb3_cic.evaluation`);
 * ``skills``: a pre-trained policy under several skills, as one grid video and a plot (:mod:`sb3_cic.skill_video`).
 
@@ -27,13 +28,15 @@ import yaml
 
 from sb3_cic import zoo
 
-USAGE = """usage: sb3-cic {train,finetune,enjoy,record-video,protocol,report,skills} [options]
+USAGE = """usage: sb3-cic {train,finetune,enjoy,record-video,protocol,study,status,report,skills} [options]
 
   train         rl-zoo training (pre-training on URLB/<domain>-v0, or ddpg on a task id)
   finetune      rl-zoo training on a task id from a pre-trained model (-i model.zip)
   enjoy         rl-zoo's enjoy with the sb3-cic algorithms
   record-video  rl-zoo's record_video with the sb3-cic algorithms (needs MUJOCO_GL=egl or glfw)
   protocol      the URLB protocol: pre-train once, fine-tune on tasks x seeds, evaluate
+  study         the whole study (methods x domains x tasks x seeds) as Ray tasks, resumable
+  status        runs done / running / failed / pending of a study
   report        per-task and rliable aggregate scores of a study
   skills        a snapshot's policy under n skills: one grid video and a plot (needs MUJOCO_GL=egl)
 
@@ -206,6 +209,12 @@ def main(argv: Sequence[str] | None = None) -> None:
         from sb3_cic.protocol import main as protocol_main
 
         protocol_main(rest)
+    elif command in ("study", "status"):
+        from sb3_cic.study import cli as study_cli
+
+        code = (study_cli.main if command == "study" else study_cli.status_main)(rest)
+        if code:
+            raise SystemExit(code)
     elif command == "report":
         from sb3_cic.evaluation import main as report_main
 

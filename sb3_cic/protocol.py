@@ -2,13 +2,18 @@
 
 One study lives in one folder::
 
+    <study>/study.json                      the settings the study was made with (a command with others is refused)
     <study>/pretrain/<method>_<domain>/snapshot_<steps>.zip, result.json
     <study>/finetune/<label>/<task>/seed_<k>/eval.csv, result.json
     <study>/tensorboard/...
 
+and, in a run folder while the run is unfinished, ``checkpoint.zip`` and ``progress.json`` (``error.txt``
+if it raised): every run checkpoints itself at an episode boundary every ``checkpoint_every`` steps and,
+started again, resumes from its last checkpoint (:mod:`sb3_cic.study.checkpoint`).
+
 ``<label>`` is the method name when fine-tuning from the final snapshot, ``<method>@<steps>`` from
 another snapshot; DDPG ("from scratch") has no pre-training. A run whose ``result.json`` exists is
-not run again. Hyperparameters come from ``zoo_configs/<method>.yml`` (read with rl_zoo3, see
+not run again; an unfinished one resumes. Hyperparameters come from ``zoo_configs/<method>.yml`` (read with rl_zoo3, see
 :func:`sb3_cic.zoo.zoo_hyperparams`), with the small-scale options of :class:`Settings` on top.
 Evaluation: :class:`~sb3_cic.callbacks.URLBEvalCallback` (deterministic episodes at step 0 and every
 ``eval_freq`` steps, plus one at the end if the schedule misses it); the final return is that of
@@ -21,16 +26,15 @@ import argparse
 import csv
 import json
 import math
-import os
 import time
+import zipfile
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, ClassVar, Sequence
 
 import gymnasium as gym
 import numpy as np
 import torch as th
-from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.utils import set_random_seed
 
@@ -38,6 +42,7 @@ from envs.tasks import DOMAIN_TASKS
 from sb3_cic import zoo
 from sb3_cic.callbacks import SkillGridSweepCallback, SkillSelectionCallback, URLBEvalCallback
 from sb3_cic.constants import EXPERT_SCORES
+from sb3_cic.study.checkpoint import ResumableCallback, RunCheckpointCallback, RunFolder, write_json
 
 #: URLB's pre-training snapshots
 DEFAULT_SNAPSHOTS: tuple[int, ...] = (100_000, 500_000, 1_000_000, 2_000_000)
@@ -60,6 +65,8 @@ class Settings:
     :param num_threads: torch threads (None: torch's default)
     :param progress_bar: show SB3's progress bar
     :param verbose: verbosity of the algorithms
+    :param pretrain_checkpoint_every: steps between the checkpoints of a pre-training (0: none)
+    :param finetune_checkpoint_every: steps between the checkpoints of a fine-tuning (0: none)
     """
 
     hidden_dim: int | None = None
@@ -75,6 +82,19 @@ class Settings:
     num_threads: int | None = None
     progress_bar: bool = False
     verbose: int = 0
+    pretrain_checkpoint_every: int = 50_000
+    finetune_checkpoint_every: int = 20_000
+
+    #: the settings that make a study's results (recorded in ``study.json``); the others only say how it runs
+    STUDY_KEYS: ClassVar[tuple[str, ...]] = (
+        "hidden_dim", "batch_size", "learning_starts", "buffer_size", "pretrain_steps", "finetune_steps",
+        "eval_freq", "eval_episodes", "snapshots",
+    )
+
+    def study_settings(self) -> dict[str, Any]:
+        """The settings recorded in ``study.json`` (:attr:`STUDY_KEYS`), as JSON values."""
+        return {key: list(value) if isinstance(value, tuple) else value for key, value in asdict(self).items()
+                if key in self.STUDY_KEYS}
 
     def overrides(self, finetune: bool) -> dict[str, Any]:
         """Hyperparameter overrides for rl-zoo's reading of the yaml."""
@@ -107,6 +127,8 @@ class FinetuneResult:
     finetune_skill: list[float] | None
     #: the grid sweep's (candidate c, window return) pairs, when the skill was chosen by a sweep
     skill_sweep: list[list[float]] | None
+    #: the step of the checkpoint the run resumed from (0: it ran uninterrupted)
+    resumed_from_step: int = 0
     wall_time_s: dict[str, float | None] = field(default_factory=dict)
     hyperparams: dict[str, str] = field(default_factory=dict)
 
@@ -124,11 +146,67 @@ def task_env_id(domain: str, task: str) -> str:
     return f"URLB/{domain}-{short}-v0"
 
 
-def _write_json(path: Path, data: dict[str, Any]) -> None:
-    """Write atomically (``result.json`` marks a finished run)."""
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text(json.dumps(data, indent=2, default=float))
-    os.replace(tmp, path)
+def pretrain_dir(study: str | Path, method: str, domain: str) -> Path:
+    """Folder of the pre-training of ``method`` on ``domain``."""
+    return Path(study) / "pretrain" / f"{method}_{domain}"
+
+
+def finetune_dir(study: str | Path, label: str, task: str, seed: int) -> Path:
+    """Folder of a fine-tuning run (``task``: the URLB task name, ``walker_flip``)."""
+    return Path(study) / "finetune" / label / task / f"seed_{seed}"
+
+
+def check_snapshot(path: Path) -> None:
+    """``ValueError`` unless ``path`` is a readable saved model (a zip with SB3's ``data``, CRCs intact)."""
+    if not path.is_file():
+        raise ValueError(f"the snapshot {path} is missing (its pre-training's result.json lists it)")
+    try:
+        with zipfile.ZipFile(path) as archive:
+            if "data" not in archive.namelist() or archive.testzip() is not None:
+                raise zipfile.BadZipFile("no readable 'data' entry")
+    except (OSError, zipfile.BadZipFile) as error:
+        raise ValueError(f"the snapshot {path} is corrupt ({error!r}); pre-train again in a new study folder") from error
+
+
+def check_study_settings(study: str | Path, settings: Settings, pretrain_seed: int) -> dict[str, Any]:
+    """The content of ``<study>/study.json`` for these settings; ``ValueError`` if the folder holds another.
+
+    Writes nothing (see :func:`record_study_settings`).
+
+    :param study: study folder
+    :param settings: the command's settings
+    :param pretrain_seed: the command's pre-training seed
+    """
+    wanted = {"settings": settings.study_settings(), "pretrain_seed": pretrain_seed}
+    path = Path(study) / "study.json"
+    if not path.exists():  # a new study (or one made before study.json existed: recorded as it goes on)
+        return wanted
+    try:
+        recorded = json.loads(path.read_text())
+        recorded = {"settings": recorded["settings"], "pretrain_seed": recorded["pretrain_seed"]}
+    except (ValueError, KeyError, TypeError) as error:
+        raise ValueError(f"unreadable {path} ({error!r})") from error
+    if recorded != wanted:
+        diff = {
+            key: (recorded["settings"].get(key), value) for key, value in wanted["settings"].items()
+            if recorded["settings"].get(key) != value
+        }
+        if recorded["pretrain_seed"] != pretrain_seed:
+            diff["pretrain_seed"] = (recorded["pretrain_seed"], pretrain_seed)
+        raise ValueError(
+            f"{study} was made with other settings; (study, command): {diff}. "
+            "Use the study's settings or another folder"
+        )
+    return wanted
+
+
+def record_study_settings(study: str | Path, settings: Settings, pretrain_seed: int) -> None:
+    """Check (:func:`check_study_settings`), then write ``<study>/study.json`` if it is missing."""
+    wanted = check_study_settings(study, settings, pretrain_seed)
+    path = Path(study) / "study.json"
+    if not path.exists():
+        path.parent.mkdir(parents=True, exist_ok=True)
+        write_json(path, wanted)
 
 
 def _describe(hyperparams: dict[str, Any]) -> dict[str, str]:
@@ -140,7 +218,7 @@ def _set_threads(settings: Settings) -> None:
         th.set_num_threads(settings.num_threads)
 
 
-class SnapshotCallback(BaseCallback):
+class SnapshotCallback(ResumableCallback):
     """Save the model as ``snapshot_<steps>.zip`` when training reaches each of ``steps``.
 
     :param save_path: folder of the snapshots
@@ -164,6 +242,12 @@ class SnapshotCallback(BaseCallback):
                 print(f"Saved snapshot {path}")
         return True
 
+    def get_checkpoint_state(self) -> dict[str, Any]:
+        return {"pending": list(self.pending), "saved": dict(self.saved)}
+
+    def set_checkpoint_state(self, state: dict[str, Any]) -> None:
+        self.pending, self.saved = list(state["pending"]), dict(state["saved"])
+
 
 def pretrain(
     study: str | Path,
@@ -173,7 +257,8 @@ def pretrain(
     seed: int = 0,
     config: str | Path | None = None,
 ) -> dict[str, Any]:
-    """Pre-train ``method`` on ``URLB/<domain>-v0`` once (skipped if its ``result.json`` exists).
+    """Pre-train ``method`` on ``URLB/<domain>-v0`` once (skipped if its ``result.json`` exists; an unfinished
+    run resumes from its checkpoint, written every ``settings.pretrain_checkpoint_every`` steps).
 
     :param study: study folder
     :param method: rl-zoo name of an unsupervised method (``cic``...)
@@ -184,29 +269,26 @@ def pretrain(
     :return: the pre-training ``result.json`` content
     """
     settings = settings or Settings()
-    run_dir = Path(study) / "pretrain" / f"{method}_{domain}"
-    result_file = run_dir / "result.json"
-    if result_file.exists():
-        return json.loads(result_file.read_text())
-    run_dir.mkdir(parents=True, exist_ok=True)
+    cls = zoo.get_algo(method)
+    folder = RunFolder(pretrain_dir(study, method, domain))
+    if folder.done:
+        return json.loads(folder.result.read_text())
+    checkpoint = folder.read_meta()  # a ValueError for a corrupt or missing checkpoint, before any work
+    folder.path.mkdir(parents=True, exist_ok=True)
     _set_threads(settings)
     env_id = f"URLB/{domain}-v0"
     hyperparams, _, n_timesteps, _ = zoo.zoo_hyperparams(method, env_id, config, settings.overrides(finetune=False))
     hyperparams.pop("env_wrapper", None)
     steps = int(settings.pretrain_steps or n_timesteps)
+    common = {"device": settings.device, "verbose": settings.verbose, "tensorboard_log": str(Path(study) / "tensorboard")}
     set_random_seed(seed)
-    model = zoo.get_algo(method)(
-        env=env_id,
-        seed=seed,
-        device=settings.device,
-        verbose=settings.verbose,
-        tensorboard_log=str(Path(study) / "tensorboard"),
-        **hyperparams,
-    )
-    snapshots = SnapshotCallback(run_dir, [s for s in settings.snapshots if s < steps] + [steps], settings.verbose)
-    start = time.perf_counter()
-    model.learn(steps, callback=snapshots, tb_log_name=f"pretrain_{method}_{domain}", progress_bar=settings.progress_bar)
-    wall = time.perf_counter() - start
+    if checkpoint:
+        model = folder.load_model(cls, env_id, **common)
+    else:
+        model = cls(env=env_id, seed=seed, **common, **hyperparams)
+    snapshots = SnapshotCallback(folder.path, [s for s in settings.snapshots if s < steps] + [steps], settings.verbose)
+    wall = _train(model, folder, checkpoint, steps, [snapshots], settings.pretrain_checkpoint_every, settings,
+                  f"pretrain_{method}_{domain}")
     result = {
         "method": method,
         "domain": domain,
@@ -214,11 +296,38 @@ def pretrain(
         "seed": seed,
         "steps": steps,
         "snapshots": snapshots.saved,
+        "resumed_from_step": checkpoint["step"] if checkpoint else 0,
         "wall_time_s": {"pretrain": wall},
         "hyperparams": _describe(hyperparams),
     }
-    _write_json(result_file, result)
+    folder.finish(result)
     return result
+
+
+def _train(
+    model: Any,
+    folder: RunFolder,
+    checkpoint: dict[str, Any] | None,
+    steps: int,
+    callbacks: list[Any],
+    checkpoint_every: int,
+    settings: Settings,
+    tb_log_name: str,
+) -> float:
+    """Train ``model`` to ``steps`` with ``callbacks`` and checkpoints, resuming from ``checkpoint``; return the
+    run's training seconds (before and after a resume)."""
+    folder.start(checkpoint["step"] if checkpoint else 0)
+    if checkpoint:
+        folder.restore(model, callbacks)  # last: the random states as the checkpoint saved them
+    checkpointer = RunCheckpointCallback(folder, checkpoint_every, callbacks, checkpoint["elapsed_s"] if checkpoint else 0.0)
+    model.learn(
+        steps - model.num_timesteps,
+        callback=[*callbacks, checkpointer],
+        tb_log_name=tb_log_name,
+        reset_num_timesteps=not checkpoint,
+        progress_bar=settings.progress_bar,
+    )
+    return checkpointer.elapsed()
 
 
 def finetune(
@@ -232,7 +341,8 @@ def finetune(
     from_scratch: bool | None = None,
     config: str | Path | None = None,
 ) -> dict[str, Any]:
-    """One fine-tuning run (or a from-scratch run for DDPG), skipped if its ``result.json`` exists.
+    """One fine-tuning run (or a from-scratch run for DDPG), skipped if its ``result.json`` exists; an unfinished
+    run resumes from its checkpoint (written every ``settings.finetune_checkpoint_every`` steps).
 
     :param study: study folder (the pre-training must be done unless ``from_scratch``)
     :param method: rl-zoo name of the method
@@ -261,11 +371,14 @@ def finetune(
             raise ValueError(f"no snapshot at {snapshot} steps; saved: {sorted(int(k) for k in pre['snapshots'])}")
         if snapshot != int(pre["steps"]):
             label = f"{method}@{snapshot}"
-    run_dir = Path(study) / "finetune" / label / name / f"seed_{seed}"
-    result_file = run_dir / "result.json"
-    if result_file.exists():
-        return json.loads(result_file.read_text())
-    run_dir.mkdir(parents=True, exist_ok=True)
+    folder = RunFolder(finetune_dir(study, label, name, seed))
+    if folder.done:
+        return json.loads(folder.result.read_text())
+    snapshot_path = pretrain_dir(study, method, domain) / f"snapshot_{snapshot}.zip"
+    if not from_scratch:
+        check_snapshot(snapshot_path)
+    checkpoint = folder.read_meta()  # a ValueError for a corrupt or missing checkpoint, before any work
+    folder.path.mkdir(parents=True, exist_ok=True)
     _set_threads(settings)
 
     overrides = settings.overrides(finetune=not from_scratch)
@@ -275,16 +388,15 @@ def finetune(
     hyperparams, callbacks, n_timesteps, _ = zoo.zoo_hyperparams(method, env_id, config, overrides)
     hyperparams.pop("env_wrapper", None)
     steps = int(settings.finetune_steps or n_timesteps)
-    common = {"seed": seed, "device": settings.device, "verbose": settings.verbose}
-    common["tensorboard_log"] = str(Path(study) / "tensorboard")
+    common = {"device": settings.device, "verbose": settings.verbose, "tensorboard_log": str(Path(study) / "tensorboard")}
     set_random_seed(seed)
-    if from_scratch:
-        model = cls(env=env_id, **common, **hyperparams)
+    if checkpoint:
+        model = folder.load_model(cls, env_id, **common)
+    elif from_scratch:
+        model = cls(env=env_id, seed=seed, **common, **hyperparams)
     else:
-        assert pre is not None
         kwargs = {k: v for k, v in hyperparams.items() if k not in ("policy", "policy_kwargs")}
-        snapshot_path = Path(study) / "pretrain" / f"{method}_{domain}" / f"snapshot_{snapshot}.zip"
-        model = cls.load_pretrained(snapshot_path, env_id, **common, **kwargs)
+        model = cls.load_pretrained(snapshot_path, env_id, seed=seed, **common, **kwargs)
     if model.skill_prior is not None and not any(isinstance(c, SkillSelectionCallback) for c in callbacks):
         selection = model.make_finetune_callback()  # what learn() would add; kept here to record the sweep
         callbacks = callbacks if selection is None else [selection, *callbacks]
@@ -302,19 +414,15 @@ def finetune(
         eval_freq=settings.eval_freq,
         verbose=0,
     )
-    start = time.perf_counter()
-    model.learn(
-        steps,
-        callback=[*callbacks, evaluation],
-        tb_log_name=f"finetune_{label}_{name}_seed{seed}",
-        progress_bar=settings.progress_bar,
-    )
+    wall = _train(model, folder, checkpoint, steps, [*callbacks, evaluation], settings.finetune_checkpoint_every, settings,
+                  f"finetune_{label}_{name}_seed{seed}")
     if not evaluation.history or evaluation.history[-1][0] != model.num_timesteps:
+        start = time.perf_counter()
         evaluation._evaluate()  # the final evaluation
-    wall = time.perf_counter() - start
+        wall += time.perf_counter() - start
     eval_env.close()
 
-    with open(run_dir / "eval.csv", "w", newline="") as file:
+    with open(folder.path / "eval.csv", "w", newline="") as file:
         writer = csv.writer(file)
         writer.writerow(["timestep", "mean_return", "normalized_score"])
         for step, ret, score in evaluation.history:
@@ -338,10 +446,11 @@ def finetune(
         n_evaluations=len(evaluation.history),
         finetune_skill=None if skill is None else [float(v) for v in np.asarray(skill)],
         skill_sweep=None if sweep is None else [[float(np.mean(z)), float(ret)] for z, ret in sweep],
+        resumed_from_step=checkpoint["step"] if checkpoint else 0,
         wall_time_s={"finetune": wall, "pretrain": None if pre is None else pre["wall_time_s"]["pretrain"]},
         hyperparams=_describe({**hyperparams, "policy_kwargs": model.policy_kwargs}),
     )
-    _write_json(result_file, asdict(result))
+    folder.finish(asdict(result))
     return asdict(result)
 
 
@@ -377,6 +486,15 @@ def run_protocol(
     method = method.lower()
     cls = zoo.get_algo(method)
     from_scratch = (not zoo.has_reward_module(cls)) if from_scratch is None else from_scratch
+    if domain not in DOMAIN_TASKS:
+        raise ValueError(f"unknown domain {domain!r}; known: {sorted(DOMAIN_TASKS)}")
+    for task in tasks or ():
+        task_env_id(domain, task)  # a ValueError for an unknown task
+    record_study_settings(study, settings, pretrain_seed)
+    if snapshot is None and from_scratch != zoo.has_reward_module(cls):  # the study's layout: listed for ``status``
+        from sb3_cic.study.graph import build_graph, record_runs
+
+        record_runs(study, build_graph([method], [domain], tasks, seeds, pretrain_seed))
     if not from_scratch:
         pretrain(study, method, domain, settings, seed=pretrain_seed, config=config)
     results = []
@@ -399,9 +517,15 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--seeds", nargs="+", type=int, default=list(range(10)))
     parser.add_argument("--pretrain-seed", type=int, default=0)
     parser.add_argument("--snapshot", type=int, default=None, help="fine-tune from this snapshot (default: final)")
-    parser.add_argument("--snapshots", nargs="+", type=int, default=list(DEFAULT_SNAPSHOTS))
     parser.add_argument("--from-scratch", action="store_true", default=None, help="no pre-training (default for ddpg)")
     parser.add_argument("--conf-file", default=None, help="yaml (default zoo_configs/<method>.yml)")
+    add_settings_arguments(parser)
+    return parser
+
+
+def add_settings_arguments(parser: argparse.ArgumentParser) -> None:
+    """The scale, evaluation and checkpoint options of ``protocol`` and ``study`` (see :class:`Settings`)."""
+    parser.add_argument("--snapshots", nargs="+", type=int, default=list(DEFAULT_SNAPSHOTS))
     parser.add_argument("--small", action="store_true", help="hidden 32, batch 32, learning_starts 500, buffer 1e5")
     parser.add_argument("--hidden-dim", type=int, default=None)
     parser.add_argument("--batch-size", type=int, default=None)
@@ -411,18 +535,24 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--finetune-steps", type=int, default=None, help="default: the yaml's (100k)")
     parser.add_argument("--eval-freq", type=int, default=10_000)
     parser.add_argument("--eval-episodes", type=int, default=10)
+    parser.add_argument(
+        "--checkpoint-every", nargs="+", type=int, default=None, metavar="STEPS",
+        help="steps between checkpoints: one value for every run, or two (pre-training, fine-tuning); "
+        "default 50000 20000; 0: none",
+    )
     parser.add_argument("--device", default="auto")
     parser.add_argument("--num-threads", type=int, default=None)
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--verbose", type=int, default=0)
-    return parser
 
 
-def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
-    """``sb3-cic protocol``."""
-    args = build_parser().parse_args(argv)
+def settings_from_args(args: argparse.Namespace) -> Settings:
+    """The :class:`Settings` of the options of :func:`add_settings_arguments`."""
     small = {"hidden_dim": 32, "batch_size": 32, "learning_starts": 500, "buffer_size": 100_000} if args.small else {}
-    settings = Settings(
+    every = args.checkpoint_every or [Settings.pretrain_checkpoint_every, Settings.finetune_checkpoint_every]
+    if len(every) > 2 or min(every) < 0:
+        raise ValueError(f"--checkpoint-every takes one or two values >= 0, got {every}")
+    return Settings(
         hidden_dim=args.hidden_dim or small.get("hidden_dim"),
         batch_size=args.batch_size or small.get("batch_size"),
         learning_starts=args.learning_starts or small.get("learning_starts"),
@@ -436,7 +566,15 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
         num_threads=args.num_threads,
         progress_bar=not args.no_progress,
         verbose=args.verbose,
+        pretrain_checkpoint_every=every[0],
+        finetune_checkpoint_every=every[-1],
     )
+
+
+def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
+    """``sb3-cic protocol``."""
+    args = build_parser().parse_args(argv)
+    settings = settings_from_args(args)
     results = run_protocol(
         args.study,
         args.method,

@@ -1,0 +1,14 @@
+"""The URLB study: resumable runs (:mod:`.checkpoint`), the job graph (:mod:`.graph`) and the Ray engine (:mod:`.engine`).
+
+* a **run** is one pre-training or fine-tuning (:func:`sb3_cic.protocol.pretrain`,
+  :func:`sb3_cic.protocol.finetune`): a spec in, a run folder out. It checkpoints itself at episode
+  boundaries and resumes from its last checkpoint; it knows nothing of Ray.
+* the **job graph** is data: the runs of a study command, each fine-tuning depending on its
+  pre-training, checked against the study folder before anything runs.
+* the **engine** runs the graph as Ray tasks with their resources and ``max_retries``.
+
+:mod:`.cli` holds ``sb3-cic study`` and ``sb3-cic status``.
+
+Nothing is imported here, so that the run code (``sb3_cic.protocol``) can import :mod:`.checkpoint`
+without importing Ray.
+"""

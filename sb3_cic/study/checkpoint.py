@@ -1,0 +1,408 @@
+"""Resumable runs: a run folder's bookkeeping files and its checkpoint.
+
+A run folder holds, besides what the run produces (``result.json``, ``eval.csv``, snapshots):
+
+* ``checkpoint.zip`` while the run is unfinished: the run's whole state at an episode boundary,
+  written to ``checkpoint.tmp`` and renamed (a kill during a write leaves the previous checkpoint);
+  deleted once ``result.json`` is written;
+* ``progress.json`` while the run is unfinished: who runs it (host, pid) and its last checkpoint step;
+* ``error.txt`` when the run raised: the traceback.
+
+The checkpoint is a zip (stored, not compressed) of ``meta.json`` (step, elapsed time), ``model.zip``
+(SB3's ``save``: networks, optimisers, reward module, counters, last observation, action noise),
+``replay_buffer.pkl`` (SB3's ``save_replay_buffer``) and ``state.pkl``: what SB3 does not save, namely the
+random states (Python, numpy, torch, the model's spaces), the environments' states (each env's episode
+start, the skill wrappers' schedules) and the callbacks' states (:class:`ResumableCallback`).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import pickle
+import random
+import socket
+import time
+import zipfile
+from pathlib import Path
+from typing import Any, Sequence
+
+import gymnasium as gym
+import numpy as np
+import torch as th
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.type_aliases import GymEnv
+from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecEnvWrapper
+
+#: version of the checkpoint's content
+CHECKPOINT_FORMAT = 1
+
+
+def write_json(path: Path, data: dict[str, Any]) -> None:
+    """Write ``data`` to ``path`` atomically (temporary file + rename).
+
+    :param path: the file
+    :param data: JSON-able content
+    """
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(data, indent=2, default=float))
+    os.replace(tmp, path)
+
+
+class RunFolder:
+    """The bookkeeping files of one run's folder (see the module docstring).
+
+    :param path: the run folder
+    """
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self.result = self.path / "result.json"
+        self.checkpoint = self.path / "checkpoint.zip"
+        self.checkpoint_tmp = self.path / "checkpoint.tmp"
+        self.progress = self.path / "progress.json"
+        self.error = self.path / "error.txt"
+
+    @property
+    def done(self) -> bool:
+        """Whether the run finished (its ``result.json`` exists)."""
+        return self.result.exists()
+
+    def read_progress(self) -> dict[str, Any] | None:
+        """``progress.json`` (None if absent or unreadable)."""
+        try:
+            return json.loads(self.progress.read_text())
+        except (OSError, ValueError):
+            return None
+
+    def read_meta(self) -> dict[str, Any] | None:
+        """The checkpoint's ``meta.json`` (None without checkpoint); ``ValueError`` if the checkpoint is corrupt
+        or if ``progress.json`` records a checkpoint that is missing."""
+        if not self.checkpoint.exists():
+            progress = self.read_progress() or {}
+            if progress.get("checkpoint_step"):
+                raise ValueError(
+                    f"{self.progress} records a checkpoint at step {progress['checkpoint_step']} but {self.checkpoint} "
+                    f"is missing; restore it, or delete {self.progress} to run this run again from step 0"
+                )
+            return None
+        try:
+            with zipfile.ZipFile(self.checkpoint) as archive:
+                meta = json.loads(archive.read("meta.json"))
+                missing = {"model.zip", "replay_buffer.pkl", "state.pkl"} - set(archive.namelist())
+        except (OSError, ValueError, KeyError, zipfile.BadZipFile) as error:
+            raise ValueError(
+                f"corrupt checkpoint {self.checkpoint} ({error!r}); delete it to run this run again from step 0"
+            ) from error
+        if missing or meta.get("format") != CHECKPOINT_FORMAT or not isinstance(meta.get("step"), int):
+            raise ValueError(f"corrupt checkpoint {self.checkpoint} (missing {sorted(missing)} or bad meta.json {meta})")
+        return meta
+
+    def start(self, checkpoint_step: int = 0) -> None:
+        """Mark the run as running here (``progress.json``) and forget an earlier failure.
+
+        :param checkpoint_step: the step of the checkpoint it resumes from (0: none)
+        """
+        self.path.mkdir(parents=True, exist_ok=True)
+        self.error.unlink(missing_ok=True)
+        self._write_progress(checkpoint_step)
+
+    def _write_progress(self, checkpoint_step: int) -> None:
+        write_json(
+            self.progress,
+            {"host": socket.gethostname(), "pid": os.getpid(), "checkpoint_step": checkpoint_step, "updated": time.time()},
+        )
+
+    def finish(self, result: dict[str, Any]) -> None:
+        """Write ``result.json``, then delete the checkpoint and ``progress.json``.
+
+        :param result: the run's result
+        """
+        write_json(self.result, result)
+        for path in (self.checkpoint, self.checkpoint_tmp, self.progress, self.error):
+            path.unlink(missing_ok=True)
+
+    def fail(self, traceback: str) -> None:
+        """Record the run as failed: ``error.txt`` holds the traceback (the checkpoint stays, to resume from).
+
+        :param traceback: the formatted traceback
+        """
+        self.path.mkdir(parents=True, exist_ok=True)
+        self.error.write_text(traceback)
+
+    # the checkpoint ------------------------------------------------------------------------
+    def save_checkpoint(self, model: BaseAlgorithm, callbacks: Sequence[BaseCallback], meta: dict[str, Any]) -> int:
+        """Write the checkpoint (temporary file + rename) and record its step; return its size in bytes.
+
+        :param model: the model, at an episode boundary of its (single) training env
+        :param callbacks: the callbacks whose state is saved (:class:`ResumableCallback` or any, for ``n_calls``)
+        :param meta: extra entries of ``meta.json``
+        """
+        meta = {**meta, "format": CHECKPOINT_FORMAT, "step": int(model.num_timesteps)}
+        state = {
+            "rng": rng_state(model),
+            "env": vec_env_state(model.get_env()),
+            "callbacks": [callback_state(callback) for callback in callbacks],
+        }
+        model_bytes = io.BytesIO()
+        model.save(model_bytes)
+        with zipfile.ZipFile(self.checkpoint_tmp, "w", compression=zipfile.ZIP_STORED, allowZip64=True) as archive:
+            archive.writestr("meta.json", json.dumps(meta, default=float))
+            archive.writestr("model.zip", model_bytes.getvalue())
+            with archive.open("replay_buffer.pkl", "w", force_zip64=True) as file:
+                pickle.dump(model.replay_buffer, file, protocol=pickle.HIGHEST_PROTOCOL)
+            with archive.open("state.pkl", "w", force_zip64=True) as file:
+                pickle.dump(state, file, protocol=pickle.HIGHEST_PROTOCOL)
+        os.replace(self.checkpoint_tmp, self.checkpoint)
+        self._write_progress(meta["step"])
+        return self.checkpoint.stat().st_size
+
+    def load_model(self, cls: type[BaseAlgorithm], env: GymEnv, **kwargs: Any) -> BaseAlgorithm:
+        """The checkpoint's model, on ``env``, with its replay buffer (random and env states: :meth:`restore`).
+
+        :param cls: the algorithm class
+        :param env: the training env (an id or env, as the run made it)
+        :param kwargs: other arguments of ``cls.load`` (``device``, ``tensorboard_log``...)
+        """
+        with zipfile.ZipFile(self.checkpoint) as archive:
+            model = cls.load(io.BytesIO(archive.read("model.zip")), env=env, force_reset=False, **kwargs)
+            model.load_replay_buffer(io.BytesIO(archive.read("replay_buffer.pkl")))  # SB3's: device, relabel hook
+        return model
+
+    def restore(self, model: BaseAlgorithm, callbacks: Sequence[BaseCallback]) -> dict[str, Any]:
+        """Put the envs, the callbacks and the random states back as the checkpoint saved them; return ``meta.json``.
+
+        Call it last before ``learn``: building the run's objects may draw from the global random states.
+
+        :param model: the model of :meth:`load_model`
+        :param callbacks: the same callbacks, in the same order, as given to :meth:`save_checkpoint`
+        """
+        with zipfile.ZipFile(self.checkpoint) as archive:
+            meta = json.loads(archive.read("meta.json"))
+            with archive.open("state.pkl") as file:
+                state = pickle.load(file)
+        if len(state["callbacks"]) != len(callbacks):
+            raise ValueError(
+                f"{self.checkpoint} holds {len(state['callbacks'])} callbacks' states, the run has {len(callbacks)}"
+            )
+        set_vec_env_state(model.get_env(), state["env"], model._last_obs)  # type: ignore[arg-type]
+        for callback, saved in zip(callbacks, state["callbacks"]):
+            set_callback_state(callback, saved)
+        set_rng_state(model, state["rng"])
+        return meta
+
+
+# random states -------------------------------------------------------------------------------
+def rng_state(model: BaseAlgorithm) -> dict[str, Any]:
+    """The random states a run draws from: Python, numpy (action noise, replay sampling), torch and the model's spaces.
+
+    :param model: the model (its action space draws the warm-up's random actions)
+    """
+    return {
+        "python": random.getstate(),
+        "numpy": np.random.get_state(),
+        "torch": th.get_rng_state(),
+        "cuda": th.cuda.get_rng_state_all() if th.cuda.is_available() and th.cuda.is_initialized() else None,
+        "action_space": model.action_space.np_random.bit_generator.state,
+        "observation_space": model.observation_space.np_random.bit_generator.state,
+    }
+
+
+def set_rng_state(model: BaseAlgorithm, state: dict[str, Any]) -> None:
+    """Restore what :func:`rng_state` returned.
+
+    :param model: the model
+    :param state: the saved random states
+    """
+    random.setstate(state["python"])
+    np.random.set_state(state["numpy"])
+    th.set_rng_state(state["torch"])
+    if state["cuda"] is not None and th.cuda.is_available():
+        th.cuda.set_rng_state_all(state["cuda"])
+    model.action_space.np_random.bit_generator.state = state["action_space"]
+    model.observation_space.np_random.bit_generator.state = state["observation_space"]
+
+
+# environments --------------------------------------------------------------------------------
+def _has(obj: Any, name: str) -> bool:
+    # looked up on the class: gymnasium wrappers do not forward attributes, but be explicit
+    return callable(getattr(type(obj), name, None))
+
+
+def _layers(env: gym.Env) -> list[gym.Env]:
+    layers = [env]
+    while isinstance(env, gym.Wrapper):
+        env = env.env
+        layers.append(env)
+    return layers
+
+
+def env_state(env: gym.Env) -> list[Any]:
+    """The checkpoint state of each layer of ``env`` (its ``get_checkpoint_state``, None for a layer without).
+
+    Taken just after a reset: :class:`~envs.dmc.DMCEnv` saves the random state its episode started from.
+
+    :param env: a gymnasium env and its wrappers
+    """
+    return [layer.get_checkpoint_state() if _has(layer, "get_checkpoint_state") else None for layer in _layers(env)]
+
+
+def set_env_state(env: gym.Env, state: list[Any]) -> list[Any]:
+    """Reset ``env`` (the wrappers' bookkeeping), then restore each layer's state; return what the layers returned.
+
+    :param env: an env built as the one :func:`env_state` read
+    :param state: what :func:`env_state` returned
+    """
+    layers = _layers(env)
+    if len(layers) != len(state):
+        raise ValueError(f"the env has {len(layers)} layers, the checkpoint {len(state)}: not the same env")
+    env.reset()
+    return [layer.set_checkpoint_state(saved) for layer, saved in zip(layers, state) if saved is not None]
+
+
+def _vec_layers(venv: VecEnv) -> tuple[list[VecEnvWrapper], DummyVecEnv]:
+    wrappers = []
+    while isinstance(venv, VecEnvWrapper):
+        wrappers.append(venv)
+        venv = venv.venv
+    if not isinstance(venv, DummyVecEnv):
+        raise ValueError(f"checkpoints need the envs in this process (a DummyVecEnv), got {type(venv).__name__}")
+    return wrappers, venv
+
+
+def vec_env_state(venv: VecEnv | None) -> dict[str, Any]:
+    """The checkpoint state of a VecEnv (of its VecEnv wrappers and of each env), taken at an episode boundary.
+
+    :param venv: the model's training env (a DummyVecEnv, possibly wrapped)
+    """
+    assert venv is not None
+    wrappers, dummy = _vec_layers(venv)
+    return {
+        "wrappers": [w.get_checkpoint_state() if _has(w, "get_checkpoint_state") else None for w in wrappers],
+        "envs": [env_state(env) for env in dummy.envs],
+    }
+
+
+def set_vec_env_state(venv: VecEnv | None, state: dict[str, Any], last_obs: np.ndarray | None = None) -> None:
+    """Restore what :func:`vec_env_state` returned.
+
+    :param venv: the VecEnv, built as the one that was saved
+    :param state: the saved state
+    :param last_obs: the model's saved last observation: each env's restored observation must start with it
+        (a ``RuntimeError`` says the episode start could not be reproduced)
+    """
+    assert venv is not None
+    wrappers, dummy = _vec_layers(venv)
+    for i, (env, saved) in enumerate(zip(dummy.envs, state["envs"], strict=True)):
+        observations = [obs for obs in set_env_state(env, saved) if isinstance(obs, np.ndarray)]
+        if last_obs is not None and observations:
+            obs = observations[0]
+            if not np.array_equal(np.asarray(last_obs[i][: obs.size], dtype=np.float32), obs.astype(np.float32)):
+                raise RuntimeError("the checkpoint's episode start could not be reproduced: the env is not the saved one")
+    for wrapper, saved in zip(wrappers, state["wrappers"], strict=True):
+        if saved is not None:
+            wrapper.set_checkpoint_state(saved)
+
+
+# callbacks -----------------------------------------------------------------------------------
+class ResumableCallback(BaseCallback):
+    """A callback whose state a checkpoint saves (its ``n_calls`` and :meth:`get_checkpoint_state`).
+
+    After :meth:`set_checkpoint_state` the callback is :attr:`resumed`: its ``_on_training_start`` must
+    continue, not start over (no step-0 evaluation, no new skill sweep...).
+
+    :param verbose: verbosity
+    """
+
+    #: set when the state came from a checkpoint
+    resumed: bool = False
+
+    def get_checkpoint_state(self) -> dict[str, Any]:
+        """The callback's state beyond ``n_calls`` (none by default)."""
+        return {}
+
+    def set_checkpoint_state(self, state: dict[str, Any]) -> None:
+        """Restore what :meth:`get_checkpoint_state` returned."""
+
+
+def callback_state(callback: BaseCallback) -> dict[str, Any]:
+    """The state of ``callback`` a checkpoint saves: ``n_calls``, plus :class:`ResumableCallback`'s own.
+
+    :param callback: any SB3 callback
+    """
+    own = callback.get_checkpoint_state() if isinstance(callback, ResumableCallback) else {}
+    return {"class": type(callback).__name__, "n_calls": callback.n_calls, "state": own}
+
+
+def set_callback_state(callback: BaseCallback, state: dict[str, Any]) -> None:
+    """Restore what :func:`callback_state` returned (the callback must be of the same class).
+
+    :param callback: the run's callback
+    :param state: its saved state
+    """
+    if type(callback).__name__ != state["class"]:
+        raise ValueError(f"the checkpoint saved a {state['class']}, the run has a {type(callback).__name__}")
+    callback.n_calls = state["n_calls"]
+    if isinstance(callback, ResumableCallback):
+        callback.set_checkpoint_state(state["state"])
+        callback.resumed = True
+
+
+class RunCheckpointCallback(BaseCallback):
+    """Checkpoint the run every ``every`` steps, at the first episode boundary after that many steps.
+
+    The checkpoint is taken when a rollout starts (the previous rollout's updates done) right after an
+    episode ended, so a resumed run goes on exactly as the uninterrupted one would.
+
+    :param folder: the run's folder
+    :param every: steps between checkpoints (0: none)
+    :param callbacks: the run's other callbacks, whose state is saved
+    :param elapsed_s: training time of the run before this ``learn`` call (a resumed run's)
+    :param verbose: verbosity
+    """
+
+    def __init__(
+        self, folder: RunFolder, every: int, callbacks: Sequence[BaseCallback], elapsed_s: float = 0.0, verbose: int = 0
+    ) -> None:
+        super().__init__(verbose)
+        if not isinstance(every, (int, np.integer)) or every < 0:
+            raise ValueError(f"the checkpoint period must be an int >= 0, got {every!r}")
+        self.folder = folder
+        self.every = int(every)
+        self.callbacks = list(callbacks)
+        self.elapsed_s = elapsed_s
+        #: (step, seconds, bytes) of each checkpoint written
+        self.written: list[tuple[int, float, int]] = []
+
+    def _init_callback(self) -> None:
+        if self.every:  # a ValueError now rather than at the first checkpoint
+            _, dummy = _vec_layers(self.model.get_env())
+            for env in dummy.envs:
+                if not any(_has(layer, "get_checkpoint_state") for layer in _layers(env)):
+                    raise ValueError(
+                        f"{env} cannot checkpoint its episode start (no get_checkpoint_state, as URLB's DMCEnv has): "
+                        "use checkpoint_every=0"
+                    )
+        self._last = self.num_timesteps
+        self._start = time.perf_counter()
+
+    def elapsed(self) -> float:
+        """Training seconds of the run so far (including the time before a resume)."""
+        return self.elapsed_s + time.perf_counter() - self._start
+
+    def _on_rollout_start(self) -> None:
+        if not self.every or self.num_timesteps - self._last < self.every:
+            return
+        if not np.all(self.model._last_episode_starts):
+            return
+        start = time.perf_counter()
+        size = self.folder.save_checkpoint(self.model, self.callbacks, {"elapsed_s": self.elapsed()})
+        self.written.append((self.num_timesteps, time.perf_counter() - start, size))
+        self._last = self.num_timesteps
+        if self.verbose:
+            print(f"Checkpoint at step {self.num_timesteps}: {self.folder.checkpoint} ({size / 1e6:.1f} MB)")
+
+    def _on_step(self) -> bool:
+        return True

@@ -1,0 +1,67 @@
+"""``sb3-cic study`` and ``sb3-cic status``."""
+
+from __future__ import annotations
+
+import argparse
+from typing import Sequence
+
+from sb3_cic.protocol import add_settings_arguments, settings_from_args
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Arguments of ``sb3-cic study``."""
+    parser = argparse.ArgumentParser(
+        prog="sb3-cic study",
+        description="The URLB study on Ray: pre-train each method on each domain, fine-tune on the tasks x seeds; "
+        "each run a Ray task, resumed from its last checkpoint when started again.",
+    )
+    parser.add_argument("study", help="study folder (on a cluster: storage every node sees)")
+    parser.add_argument("--methods", nargs="+", default=["all"], help="cic apt ... ddpg, or all (default)")
+    parser.add_argument("--domains", nargs="+", default=["all"], help="walker quadruped jaco, or all (default)")
+    parser.add_argument("--tasks", nargs="+", default=None, help="tasks (flip or walker_flip; default: each domain's)")
+    parser.add_argument("--seeds", nargs="+", type=int, default=list(range(10)), help="fine-tuning seeds (default 0..9)")
+    parser.add_argument("--pretrain-seed", type=int, default=0)
+    add_settings_arguments(parser)
+    parser.add_argument("--address", default=None, help="join a running Ray cluster (auto, ray://host:10001...)")
+    parser.add_argument("--workers", type=int, default=1, help="runs at a time of the local Ray instance (no --address)")
+    parser.add_argument("--cpus-per-run", type=float, default=1)
+    parser.add_argument("--gpus-per-run", type=float, default=0, help="e.g. 0.25: four runs per GPU")
+    parser.add_argument("--max-retries", type=int, default=3, help="restarts of a run whose worker died")
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``sb3-cic study``; returns the exit code: 0 when every run of the command is done."""
+    from sb3_cic.study.engine import run_study
+    from sb3_cic.study.graph import status_report
+
+    args = build_parser().parse_args(argv)
+    try:
+        settings = settings_from_args(args)
+        runs, statuses = run_study(
+            args.study, args.methods, args.domains, args.tasks, args.seeds, settings,
+            pretrain_seed=args.pretrain_seed, address=args.address, workers=args.workers,
+            cpus_per_run=args.cpus_per_run, gpus_per_run=args.gpus_per_run, max_retries=args.max_retries,
+            progress_bar=not args.no_progress,
+        )
+    except ValueError as error:
+        raise SystemExit(f"sb3-cic study: error: {error}") from None
+    report, finished = status_report(args.study)
+    print(report)
+    print(f"{len(statuses)} runs ran now; report: sb3-cic report {args.study}")
+    return 0 if finished else 1
+
+
+def status_main(argv: Sequence[str] | None = None) -> int:
+    """``sb3-cic status STUDY``; returns the exit code: 0 when every run of the study is done."""
+    from sb3_cic.study.graph import status_report
+
+    parser = argparse.ArgumentParser(prog="sb3-cic status", description="Runs done / running / failed / pending of a study.")
+    parser.add_argument("study", help="study folder")
+    args = parser.parse_args(argv)
+    try:
+        report, finished = status_report(args.study)
+    except ValueError as error:
+        raise SystemExit(f"sb3-cic status: error: {error}") from None
+    print(report)
+    return 0 if finished else 1

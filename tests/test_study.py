@@ -1,0 +1,279 @@
+"""The study on Ray and resumable runs, at tiny scale (hidden 32, batch 32, 500 random steps, episodes of 1,000 steps).
+
+One local Ray instance with 2 CPUs serves the module (``ray.init`` here, ``ray.shutdown`` at the end). A
+checkpoint is taken at an episode boundary, so a run killed "after its first checkpoint" is a run of more
+than 1,000 steps with ``checkpoint_every=1000``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import pytest
+import torch as th
+
+from sb3_cic.cli import main
+from sb3_cic.protocol import Settings, run_protocol
+from sb3_cic.study.engine import run_study
+from sb3_cic.study.graph import status_report
+
+ray = pytest.importorskip("ray")
+
+SETTINGS = Settings(
+    hidden_dim=32,
+    batch_size=32,
+    learning_starts=500,
+    buffer_size=10_000,
+    pretrain_steps=1000,
+    finetune_steps=1000,
+    eval_freq=1000,
+    eval_episodes=1,
+    num_threads=1,
+    pretrain_checkpoint_every=1000,
+    finetune_checkpoint_every=1000,
+)
+TASKS = ("stand", "flip")
+SEEDS = (0, 1)
+#: the command line of SETTINGS
+FLAGS = [
+    "--hidden-dim", "32", "--batch-size", "32", "--learning-starts", "500", "--buffer-size", "10000",
+    "--eval-freq", "1000", "--eval-episodes", "1", "--num-threads", "1", "--checkpoint-every", "1000", "--no-progress",
+]
+
+
+@pytest.fixture(scope="module")
+def ray_instance():
+    threads = th.get_num_threads()
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    yield
+    ray.shutdown()
+    th.set_num_threads(threads)
+
+
+def _results(study: Path) -> dict[tuple[str, str, int], dict]:
+    out = {}
+    for path in study.glob("finetune/*/*/seed_*/result.json"):
+        result = json.loads(path.read_text())
+        out[(result["label"], result["task"], result["seed"])] = result
+    return out
+
+
+def _curves(study: Path) -> dict[str, str]:
+    return {str(p.relative_to(study)): p.read_text() for p in sorted(study.glob("finetune/*/*/seed_*/eval.csv"))}
+
+
+def _files(folder: Path) -> dict[str, tuple[int, int]]:
+    return {str(p.relative_to(folder)): (p.stat().st_size, p.stat().st_mtime_ns) for p in folder.rglob("*") if p.is_file()}
+
+
+@pytest.fixture(scope="module")
+def study(ray_instance, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """cic and ddpg x 2 tasks x 2 seeds on Ray, 2 runs at a time."""
+    path = tmp_path_factory.mktemp("ray_study")
+    runs, statuses = run_study(path, ["cic", "ddpg"], ["walker"], TASKS, SEEDS, SETTINGS, progress_bar=False)
+    assert len(runs) == 9 and [s["state"] for s in statuses] == ["done"] * 9
+    return path
+
+
+def test_study_on_ray_equals_sequential_protocol(study: Path, tmp_path: Path):
+    results = _results(study)
+    assert sorted(results) == sorted((m, f"walker_{t}", s) for m in ("cic", "ddpg") for t in TASKS for s in SEEDS)
+    assert all(r["resumed_from_step"] == 0 for r in results.values())
+    assert not list(study.rglob("checkpoint*")) and not list(study.rglob("progress.json"))  # deleted once done
+    sequential = tmp_path / "sequential"
+    for method in ("cic", "ddpg"):
+        run_protocol(sequential, method, "walker", tasks=TASKS, seeds=SEEDS, settings=SETTINGS)
+    expected = _results(sequential)
+    assert {k: r["final_return"] for k, r in results.items()} == {k: r["final_return"] for k, r in expected.items()}
+    assert _curves(study) == _curves(sequential)  # every evaluation, not only the last
+    assert json.loads((study / "study.json").read_text())["settings"] == SETTINGS.study_settings()
+
+    text, finished = status_report(study)
+    assert finished and "9 runs, 9 done, 0 running, 0 failed, 0 pending" in text
+    assert "| cic | walker | 5 | 0 | 0 | 0 |" in text and "| ddpg | walker | 4 | 0 | 0 | 0 |" in text
+    main(["status", str(study)])  # exit code 0: no SystemExit
+
+
+def _kill_after_checkpoint(command: list[str], env: dict[str, str], checkpoint: Path) -> None:
+    """Start ``command`` and SIGKILL it once ``checkpoint`` exists."""
+    process = subprocess.Popen(command, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    try:
+        deadline = time.monotonic() + 120
+        while not checkpoint.exists() and process.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert checkpoint.exists(), process.stderr.read().decode() if process.poll() is not None else "no checkpoint"
+        process.send_signal(signal.SIGKILL)
+    finally:
+        process.kill()
+        process.wait()
+
+
+def test_sigkill_after_first_checkpoint_resumes_identically(tmp_path: Path):
+    """``sb3-cic protocol`` killed with SIGKILL after the first checkpoint of the pre-training, started again, killed
+    again after the first checkpoint of the fine-tuning (in the middle of its skill sweep: learning_starts 1,500),
+    started again: the same networks (bit for bit), sweep and evaluations as the uninterrupted run (one torch thread)."""
+    settings = replace(SETTINGS, pretrain_steps=2000, finetune_steps=2000, learning_starts=1500)
+    run_protocol(tmp_path / "uninterrupted", "cic", "walker", tasks=["stand"], seeds=[0], settings=settings)
+
+    study = tmp_path / "killed"
+    command = [sys.executable, "-m", "sb3_cic.cli", "protocol", "--method", "cic", "--domain", "walker", "--tasks", "stand",
+               "--seeds", "0", "--study", str(study), "--pretrain-steps", "2000", "--finetune-steps", "2000", *FLAGS,
+               "--learning-starts", "1500"]
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "MUJOCO_GL": "disable"}
+    pretrain = study / "pretrain" / "cic_walker"
+    finetune = study / "finetune" / "cic" / "walker_stand" / "seed_0"
+    _kill_after_checkpoint(command, env, pretrain / "checkpoint.zip")
+    assert not (pretrain / "result.json").exists()
+    text, finished = status_report(study)  # the killed run waits with its checkpoint
+    assert not finished and "pretrain cic walker: pending, last checkpoint at step 1000" in text
+    _kill_after_checkpoint(command, env, finetune / "checkpoint.zip")
+    assert (pretrain / "result.json").exists() and not (finetune / "result.json").exists()
+
+    subprocess.run(command, env=env, check=True, stdout=subprocess.DEVNULL)
+    pre = json.loads((pretrain / "result.json").read_text())
+    assert pre["resumed_from_step"] == 1000 and not list(study.rglob("checkpoint*"))
+    from sb3_cic import CIC
+
+    killed = CIC.load(pretrain / "snapshot_2000.zip", device="cpu")
+    uninterrupted = CIC.load(tmp_path / "uninterrupted" / "pretrain" / "cic_walker" / "snapshot_2000.zip", device="cpu")
+    for module in ("policy", "reward_module"):
+        a, b = getattr(killed, module).state_dict(), getattr(uninterrupted, module).state_dict()
+        assert a.keys() == b.keys() and all(th.equal(a[k], b[k]) for k in a), module
+    result = _results(study)[("cic", "walker_stand", 0)]
+    expected = _results(tmp_path / "uninterrupted")[("cic", "walker_stand", 0)]
+    assert result["resumed_from_step"] == 1000 and expected["resumed_from_step"] == 0
+    for key in ("final_return", "finetune_skill", "skill_sweep", "n_evaluations"):
+        assert result[key] == expected[key], key
+    assert len(result["skill_sweep"]) == 15  # 1,500 steps of 100-step windows: the checkpoint fell in the sweep
+    assert _curves(study) == _curves(tmp_path / "uninterrupted")
+
+
+def test_ray_worker_killed_mid_study_is_retried(ray_instance, tmp_path: Path):
+    """SIGKILL the Ray worker of a fine-tuning after its first checkpoint: Ray retries the task, the run resumes from
+    its checkpoint and ends as the uninterrupted run."""
+    settings = replace(SETTINGS, finetune_steps=2000)
+    study = tmp_path / "study"
+    folder = study / "finetune" / "ddpg" / "walker_stand" / "seed_0"
+    killed, seen = [], []
+
+    def kill_worker_after_first_checkpoint() -> None:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and not (folder / "result.json").exists():
+            progress = folder / "progress.json"
+            if (folder / "checkpoint.zip").exists() and progress.exists():
+                pid = json.loads(progress.read_text())["pid"]
+                seen.append(status_report(study)[0])
+                os.kill(pid, signal.SIGKILL)  # the worker process running the run (started by this test's Ray)
+                killed.append(pid)
+                return
+            time.sleep(0.05)
+
+    watcher = threading.Thread(target=kill_worker_after_first_checkpoint)
+    watcher.start()
+    try:
+        _, statuses = run_study(study, ["ddpg"], ["walker"], ["stand"], [0], settings, max_retries=2, progress_bar=False)
+    finally:
+        watcher.join()
+    assert killed and statuses == [{"run": "ddpg walker_stand seed 0", "state": "done", "error": None}]
+    assert "1 run, 0 done, 1 running" in seen[0] and "ddpg walker_stand seed 0: running on" in seen[0]
+    assert f"(pid {killed[0]}), last checkpoint at step 1000" in seen[0]
+    result = json.loads((folder / "result.json").read_text())
+    assert result["resumed_from_step"] == 1000
+    run_protocol(tmp_path / "uninterrupted", "ddpg", "walker", tasks=["stand"], seeds=[0], settings=settings)
+    assert _curves(study) == _curves(tmp_path / "uninterrupted")
+
+
+def test_failing_run_is_reported_and_the_others_finish(ray_instance, tmp_path: Path, capsys: pytest.CaptureFixture):
+    study = tmp_path / "study"
+    broken = study / "finetune" / "ddpg" / "walker_stand" / "seed_1"
+    (broken / "eval.csv").mkdir(parents=True)  # the run trains, then cannot write its eval.csv
+    with pytest.raises(SystemExit) as exit_info:
+        main(["study", str(study), "--methods", "ddpg", "--domains", "walker", "--tasks", "stand", "--seeds", "0", "1",
+              "--finetune-steps", "1000", *FLAGS])
+    assert exit_info.value.code == 1  # not everything finished
+    assert (study / "finetune" / "ddpg" / "walker_stand" / "seed_0" / "result.json").exists()
+    assert not (broken / "result.json").exists()
+    assert "IsADirectoryError" in (broken / "error.txt").read_text()
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as exit_info:
+        main(["status", str(study)])
+    assert exit_info.value.code == 1
+    text = capsys.readouterr().out
+    assert "2 runs, 1 done, 0 running, 1 failed, 0 pending" in text
+    assert "ddpg walker_stand seed 1: IsADirectoryError" in text and str(broken / "error.txt") in text
+
+
+@pytest.mark.parametrize(
+    "change, arguments, message",
+    [
+        (None, {"methods": ["cic", "nope"]}, "unknown algorithm 'nope'"),
+        (None, {"domains": ["walker", "cheetah"]}, "unknown domain 'cheetah'"),
+        (None, {"tasks": ["stand", "backflip"]}, "unknown task 'backflip'"),
+        (None, {"settings": replace(SETTINGS, hidden_dim=64)}, "other settings.*hidden_dim.*32, 64"),
+        ("corrupt_checkpoint", {}, "corrupt checkpoint"),
+        ("lost_checkpoint", {}, "records a checkpoint at step 1000 but .* is missing"),
+        ("missing_snapshot", {}, "snapshot .*snapshot_1000.zip is missing"),
+        ("corrupt_snapshot", {}, "snapshot .*snapshot_1000.zip is corrupt"),
+    ],
+)
+def test_bad_input_is_refused_before_any_work(study: Path, tmp_path: Path, change, arguments, message):
+    folder = tmp_path / "study"
+    shutil.copytree(study, folder)
+    run = folder / "finetune" / "cic" / "walker_stand" / "seed_0"
+    snapshot = folder / "pretrain" / "cic_walker" / "snapshot_1000.zip"
+    if change is not None:  # the run must be unfinished for its checkpoint to count
+        for name in ("result.json", "eval.csv"):
+            (run / name).unlink()
+    if change == "corrupt_checkpoint":
+        (run / "checkpoint.zip").write_bytes(b"PK\x03\x04 not a zip")
+    elif change == "lost_checkpoint":
+        (run / "progress.json").write_text(json.dumps({"host": "elsewhere", "pid": 1, "checkpoint_step": 1000}))
+    elif change == "missing_snapshot":
+        snapshot.unlink()
+    elif change == "corrupt_snapshot":
+        snapshot.write_bytes(snapshot.read_bytes()[:-100])
+    before = _files(folder)
+    kwargs = {"methods": ["cic", "ddpg"], "domains": ["walker"], "tasks": list(TASKS), "seeds": list(SEEDS),
+              "settings": SETTINGS, **arguments}
+    with pytest.raises(ValueError, match=message):
+        run_study(folder, progress_bar=False, **kwargs)
+    assert _files(folder) == before  # nothing changed
+
+
+def test_checkpoint_write_is_atomic(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    """A write that dies half-way leaves the previous checkpoint readable and loadable."""
+    from sb3_cic import URLBDDPG
+    from sb3_cic.study import checkpoint as checkpoint_module
+    from sb3_cic.study.checkpoint import RunFolder
+
+    model = URLBDDPG("MlpPolicy", "URLB/walker-stand-v0", policy_kwargs={"hidden_dim": 32}, batch_size=32,
+                     buffer_size=2000, learning_starts=500, seed=0, device="cpu")
+    model.learn(1000)  # one episode: an episode boundary
+    folder = RunFolder(tmp_path / "run")
+    folder.start()
+    folder.save_checkpoint(model, [], {"elapsed_s": 1.0})
+    first = folder.checkpoint.read_bytes()
+
+    def dies_half_way(obj, file, protocol=None):
+        file.write(b"\0" * 1000)
+        raise KeyboardInterrupt("killed during the write")
+
+    model.num_timesteps = 2000  # what a later checkpoint would record
+    monkeypatch.setattr(checkpoint_module.pickle, "dump", dies_half_way)
+    with pytest.raises(KeyboardInterrupt):
+        folder.save_checkpoint(model, [], {"elapsed_s": 2.0})
+    monkeypatch.undo()
+    assert folder.checkpoint_tmp.exists() and folder.checkpoint.read_bytes() == first
+    assert folder.read_meta()["step"] == 1000 and folder.read_progress()["checkpoint_step"] == 1000
+    loaded = folder.load_model(URLBDDPG, "URLB/walker-stand-v0", device="cpu")
+    folder.restore(loaded, [])
+    assert loaded.num_timesteps == 1000 and loaded.replay_buffer.size() == 1000
