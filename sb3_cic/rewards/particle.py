@@ -50,8 +50,10 @@ def knn_distances(source: th.Tensor, target: th.Tensor, k: int) -> th.Tensor:
     if source is target:  # exactly 0, not the float rounding residue of |a|^2 + |a|^2 - 2 a.a
         sq.diagonal().zero_()
     if speed_options.knn_partition and sq.device.type == "cpu" and k < sq.shape[1] and not sq.requires_grad:
-        # the same k values as topk, in the same order: numpy's introselect, then a sort of the k
-        nearest = th.from_numpy(np.sort(np.partition(sq.numpy(), k - 1, axis=1)[:, :k], axis=1))
+        # the same k values as topk, in the same order: numpy's introselect in place (sq is ours), then a sort of the k
+        selected = sq.numpy()
+        selected.partition(k - 1, axis=1)
+        nearest = th.from_numpy(np.sort(selected[:, :k], axis=1))
     else:
         nearest = th.topk(sq, k, dim=1, largest=False, sorted=True).values
     return nearest.clamp_(min=0.0).sqrt_()
