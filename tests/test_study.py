@@ -19,6 +19,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import pytest
+import ray
 import torch as th
 
 from sb3_cic.cli import main
@@ -26,7 +27,6 @@ from sb3_cic.protocol import Settings, run_protocol
 from sb3_cic.study.engine import run_study
 from sb3_cic.study.graph import status_report
 
-ray = pytest.importorskip("ray")
 
 SETTINGS = Settings(
     hidden_dim=32,
