@@ -675,12 +675,14 @@ class URLBDDPG(DDPG):
         if env is not None:
             env = saved.check_env(env)
         try:
-            return super().load(  # type: ignore[return-value]
+            model = super().load(
                 path, env=env, device=device, custom_objects=custom_objects,
                 print_system_info=print_system_info, force_reset=force_reset, **kwargs,
             )
         except RuntimeError as error:  # the networks' state dicts do not fit this class's
             raise ValueError(f"{saved.describe()} does not fit {cls.__name__}: {error}{saved.version_note()}") from error
+        model.package_version = package_version()  # what will save it next
+        return model  # type: ignore[return-value]
 
     @classmethod
     def load_pretrained(
@@ -703,6 +705,7 @@ class URLBDDPG(DDPG):
         :param kwargs: attributes to override (for example ``learning_starts``, ``tensorboard_log``)
         """
         model = cls.load(path, env=env, device=device, reward_free=False, **kwargs)
+        model.env_id = env_id_of(env) or model.env_id
         keep = finetune_critic or cls.finetune_critic
         if keep not in ("trunk", "all", "none"):
             raise ValueError(f"finetune_critic must be 'trunk', 'all' or 'none', got {keep!r}")

@@ -21,6 +21,14 @@ def test_the_snapshot_records_env_class_and_version(cic_snapshot):
     assert (model.env_id, model.algorithm, model.package_version) == ("URLB/walker-v0", "CIC", __version__)
 
 
+def test_a_fine_tuned_model_records_its_task_and_this_version(tmp_path, cic_snapshot):
+    model, _ = cic_snapshot
+    model.package_version = "0.0.1"
+    model.save(tmp_path / "old_version")
+    tuned = CIC.load_pretrained(tmp_path / "old_version.zip", env="URLB/walker-flip-v0")
+    assert (tuned.env_id, tuned.algorithm, tuned.package_version) == ("URLB/walker-flip-v0", "CIC", __version__)
+
+
 def test_snapshot_of_another_domain(cic_snapshot):
     with pytest.raises(ValueError) as error:
         CIC.load_pretrained(cic_snapshot[1], env="URLB/quadruped-walk-v0")
