@@ -49,7 +49,8 @@ def knn_distances(source: th.Tensor, target: th.Tensor, k: int) -> th.Tensor:
     sq = (source.pow(2).sum(1, keepdim=True) + target.pow(2).sum(1).unsqueeze(0)).addmm_(source, target.T, alpha=-2.0)
     if source is target:  # exactly 0, not the float rounding residue of |a|^2 + |a|^2 - 2 a.a
         sq.diagonal().zero_()
-    if speed_options.knn_partition and sq.device.type == "cpu" and k < sq.shape[1] and not sq.requires_grad:
+    numpy_ok = sq.device.type == "cpu" and sq.dtype in (th.float32, th.float64) and not sq.requires_grad
+    if speed_options.knn_partition and numpy_ok and k < sq.shape[1]:
         # the same k values as topk, in the same order: numpy's introselect in place (sq is ours), then a sort of the k
         selected = sq.numpy()
         selected.partition(k - 1, axis=1)
