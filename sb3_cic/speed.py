@@ -1,8 +1,8 @@
 """Speed switches of the update and the acting loop, and the Adam they use.
 
-Each switch changes how a result is computed, not the result (each is bit-identical to its switched-off form): ``tests/test_speed.py`` checks every
-one against its switched-off form, and ``benchmarks/throughput.py --ablations`` times the update
-with each one switched off in turn. All are on by default; switch one off for the whole process::
+Each switch changes how a result is computed, not the result: ``tests/test_speed.py`` checks that
+every one is bit-identical to its switched-off form, and ``benchmarks/throughput.py`` times the
+update with each one switched off in turn. All are on by default; switch one off for the whole process::
 
     from sb3_cic.speed import speed_options
 
