@@ -113,7 +113,7 @@ def finetune(argv: Sequence[str]) -> Path | None:
 
     from huggingface_sb3 import EnvironmentName
     from rl_zoo3.utils import get_latest_run_id
-    from stable_baselines3.common.save_util import load_from_zip_file
+    from sb3_cic.ddpg import read_saved_data
 
     algos = zoo.register_algos()
     args, algo, env_id, log_folder = _zoo_args(argv, finetune=True)
@@ -138,8 +138,7 @@ def finetune(argv: Sequence[str]) -> Path | None:
     model = run / f"{env_name}.zip"
     config_file = run / env_name / "config.yml"
     if model.is_file() and config_file.is_file():
-        data, _, _ = load_from_zip_file(model, device="cpu")
-        skill = (data or {}).get("finetune_skill")
+        skill = read_saved_data(model).get("finetune_skill")
         if skill is not None:
             _record_skill(config_file, [float(v) for v in skill])
     return run

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import operator
+import zipfile
 from functools import reduce
 from typing import Any, ClassVar, TypeVar
 
@@ -15,7 +16,7 @@ from stable_baselines3 import DDPG
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 from stable_baselines3.common.noise import ActionNoise, NormalActionNoise
 from stable_baselines3.common.policies import BasePolicy
-from stable_baselines3.common.save_util import load_from_zip_file
+from stable_baselines3.common.save_util import json_to_data, open_path
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, ReplayBufferSamples, Schedule
 from stable_baselines3.common.vec_env import VecEnv, unwrap_vec_normalize
 
@@ -46,6 +47,28 @@ def env_id_of(env: GymEnv | str | None) -> str | None:
     except AttributeError:
         spec = None
     return None if spec is None else spec.id
+
+
+def read_saved_data(path: Any, custom_objects: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The saved attributes of a model file (its ``data`` entry only; the networks are not read).
+
+    :param path: a path (``.zip`` added when missing, as SB3's ``load``) or a file object (left at its position)
+    :param custom_objects: see SB3's ``load``
+    """
+    file = open_path(path, "r", suffix="zip")
+    start = file.tell()
+    try:
+        with zipfile.ZipFile(file) as archive:
+            if "data" not in archive.namelist():
+                raise ValueError(f"{path} holds no saved model data")
+            return json_to_data(archive.read("data").decode(), custom_objects=custom_objects)
+    except zipfile.BadZipFile as error:
+        raise ValueError(f"Error: the file {path} wasn't a zip-file") from error
+    finally:
+        if file is path:
+            file.seek(start)
+        else:
+            file.close()
 
 
 def package_version() -> str:
@@ -134,7 +157,7 @@ def prepare_env(env: GymEnv | str, prior: SkillPrior | None, resample_every: int
 class SavedModel:
     """What :meth:`URLBDDPG.load` reads of a saved model before loading it, to explain a mistake.
 
-    :param data: the saved attributes (``load_from_zip_file``'s data)
+    :param data: the saved attributes (:func:`read_saved_data`)
     """
 
     def __init__(self, data: dict[str, Any]) -> None:
@@ -668,9 +691,7 @@ class URLBDDPG(DDPG):
         """
         if "policy_kwargs" in kwargs:  # compared with the saved ones, which are normalised
             kwargs["policy_kwargs"] = normalize_policy_kwargs(kwargs["policy_kwargs"])
-        data, _, _ = load_from_zip_file(path, device=device, custom_objects=custom_objects)
-        assert data is not None
-        saved = SavedModel(data)
+        saved = SavedModel(read_saved_data(path, custom_objects))
         saved.check_class(cls)
         if env is not None:
             env = saved.check_env(env)

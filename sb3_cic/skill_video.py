@@ -20,10 +20,9 @@ from typing import Any, Sequence
 
 import gymnasium as gym
 import numpy as np
-from stable_baselines3.common.save_util import load_from_zip_file
 
 from envs import SkillObservationWrapper
-from sb3_cic.ddpg import URLBDDPG
+from sb3_cic.ddpg import URLBDDPG, read_saved_data
 
 
 def load_snapshot(path: str | Path, device: str = "cpu") -> URLBDDPG:
@@ -34,9 +33,7 @@ def load_snapshot(path: str | Path, device: str = "cpu") -> URLBDDPG:
     """
     from sb3_cic.zoo import get_algo
 
-    data, _, _ = load_from_zip_file(path, device=device)
-    assert data is not None
-    cls = get_algo(data.get("algorithm") or "ddpg")
+    cls = get_algo(read_saved_data(path).get("algorithm") or "ddpg")
     return cls.load(path, device=device)
 
 
