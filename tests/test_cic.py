@@ -41,6 +41,37 @@ def test_contrastive_loss_hand_computed():
     assert accuracy.item() == pytest.approx(correct / 3)
 
 
+def test_contrastive_loss_code_variant_hand_computed():
+    """The reference code's loss: exp(1/T) subtracted from each row's denominator (clamped at 1e-6, plus 1e-6)."""
+    module = CICReward(3, 1, skill_dim=2, hidden_dim=8, temperature=0.5, variant="code")
+    q = th.tensor([[1.0, 0.0], [0.0, 2.0], [3.0, 4.0]])
+    k = th.tensor([[2.0, 0.0], [1.0, 1.0], [0.0, -1.0]])
+    loss, accuracy = module.contrastive_loss(q, k)
+    qn = [[x / math.hypot(*row) for x in row] for row in q.tolist()]
+    kn = [[x / math.hypot(*row) for x in row] for row in k.tolist()]
+    expected = 0.0
+    for i in range(3):
+        logits = [sum(a * b for a, b in zip(qn[i], kn[j])) / 0.5 for j in range(3)]
+        negatives = max(sum(math.exp(x) for x in logits) - math.exp(1 / 0.5), 1e-6)
+        expected += -math.log(math.exp(logits[i]) / (negatives + 1e-6)) / 3
+    assert loss.item() == pytest.approx(expected, rel=1e-6)
+    paper, paper_accuracy = CICReward(3, 1, skill_dim=2, hidden_dim=8).contrastive_loss(q, k)
+    assert loss.item() < paper.item() and accuracy == paper_accuracy
+    with pytest.raises(ValueError, match="'paper' or 'code'"):
+        CICReward(3, 1, skill_dim=2, hidden_dim=8, variant="Code")
+
+
+def test_cic_code_variant_settings():
+    model = CIC("MlpPolicy", "URLB/point_mass-v0", skill_dim=4, buffer_size=1024, cic_hidden_dim=8,
+                policy_kwargs={"hidden_dim": 8}, cic_variant="code")
+    rm = model.reward_module
+    assert model.knn_k == 16 and rm.particle.k == 16 and rm.particle.divide_by == "var" and rm.variant == "code"
+    paper = CIC("MlpPolicy", "URLB/point_mass-v0", skill_dim=4, buffer_size=1024, cic_hidden_dim=8,
+                policy_kwargs={"hidden_dim": 8}, knn_k=5)
+    assert paper.reward_module.particle.k == 5 and paper.reward_module.particle.divide_by == "mean"
+    assert paper.cic_variant == "paper" and paper.reward_module.variant == "paper"
+
+
 def test_contrastive_loss_lower_for_aligned_pairs():
     module = CICReward(3, 1, skill_dim=16, hidden_dim=8)
     q = th.randn(64, 16, generator=th.Generator().manual_seed(0))
@@ -58,22 +89,58 @@ def test_knn_distances_match_brute_force():
     assert th.equal(d[:, 0], th.zeros(50))  # each point is its own nearest neighbour, at distance exactly 0
 
 
-def test_particle_reward_hand_computed():
-    points = [[0.0, 0.0], [1.0, 0.0], [0.0, 2.0], [3.0, 3.0], [1.0, 1.0]]
-    k, clip = 3, 0.0005
-    estimator = ParticleEntropy(k=k, avg=True, rms=True, clip=clip)
-    reward = estimator(th.tensor(points)).squeeze(1).tolist()
-    knn = []
-    for p in points:
-        dists = sorted(math.dist(p, q) for q in points)[:k]  # the point itself is its first neighbour
-        knn.append(dists)
-    all_d = [d for row in knn for d in row]
-    n0 = 1e-4  # URLB's RMS: mean 0 with pseudo-count 1e-4, updated with this batch
-    running_mean = (sum(all_d) / len(all_d)) * len(all_d) / (n0 + len(all_d))
-    expected = [math.log(1 + max(sum(row) / k / running_mean - clip, 0.0)) for row in knn]
+POINTS = [[0.0, 0.0], [1.0, 0.0], [0.0, 2.0], [3.0, 3.0], [1.0, 1.0]]
+
+
+def hand_knn(points, k):
+    """Each point's k smallest distances, ascending (the point itself first, at 0)."""
+    return [sorted(math.dist(p, q) for q in points)[:k] for p in points]
+
+
+def hand_running(values, stat):
+    """URLB's RMS after one batch from (mean 0, var 1, pseudo-count 1e-4): the new mean or variance."""
+    n0, n = 1e-4, len(values)
+    mean = sum(values) / n
+    var = sum((v - mean) ** 2 for v in values) / (n - 1)  # torch.var: unbiased
+    if stat == "mean":
+        return mean * n / (n0 + n)
+    return (1.0 * n0 + var * n + mean**2 * n0 * n / (n0 + n)) / (n0 + n)
+
+
+@pytest.mark.parametrize("divide_by", ["mean", "var"])
+def test_particle_reward_hand_computed(divide_by):
+    """URLB's PBE / the CIC code: each distance normalised, clipped and floored, then averaged, then log(1 + x)."""
+    k, clip = 3, 0.5  # a clip large enough that flooring each distance differs from flooring the mean
+    estimator = ParticleEntropy(k=k, avg=True, rms=True, clip=clip, divide_by=divide_by)
+    reward = estimator(th.tensor(POINTS)).squeeze(1).tolist()
+    knn = hand_knn(POINTS, k)
+    m = hand_running([d for row in knn for d in row], divide_by)  # all k distances update the statistics
+    expected = [math.log(1 + sum(max(d / m - clip, 0.0) for d in row) / k) for row in knn]
     assert reward == pytest.approx(expected, rel=1e-5)
-    plain = ParticleEntropy(k=k, avg=True, rms=False, clip=0.0)(th.tensor(points)).squeeze(1).tolist()
+    floored_after = [math.log(1 + max(sum(row) / k / m - clip, 0.0)) for row in knn]
+    assert reward != pytest.approx(floored_after, rel=1e-3)  # the point's own 0 distance counts 0, not -clip
+    plain = ParticleEntropy(k=k, avg=True, rms=False, clip=0.0)(th.tensor(POINTS)).squeeze(1).tolist()
     assert plain == pytest.approx([math.log(1 + sum(row) / k) for row in knn], rel=1e-5)
+
+
+def test_particle_reward_kth_neighbour_hand_computed():
+    """avg=False: the k-th distance alone is kept, and it alone updates the running mean (over 3 batches)."""
+    k, clip = 3, 0.0005
+    estimator = ParticleEntropy(k=k, avg=False, rms=True, clip=clip)
+    g = th.Generator().manual_seed(0)
+    n0, mean, var, count = 1e-4, 0.0, 1.0, 1e-4
+    for scale in (1.0, 2.0, 0.5):
+        points = (th.randn(16, 3, generator=g) * scale).double()
+        reward = estimator(points).squeeze(1).tolist()
+        kth = [row[-1] for row in hand_knn(points.tolist(), k)]
+        n, batch_mean = len(kth), sum(kth) / len(kth)
+        batch_var = sum((d - batch_mean) ** 2 for d in kth) / (n - 1)
+        delta, total = batch_mean - mean, count + n
+        var = (var * count + batch_var * n + delta**2 * count * n / total) / total
+        mean, count = mean + delta * n / total, total
+        assert reward == pytest.approx([math.log(1 + max(d / mean - clip, 0.0)) for d in kth], rel=1e-5)
+    assert estimator.rms.mean.item() == pytest.approx(mean, rel=1e-5)
+    assert estimator.rms.count.item() == pytest.approx(3 * 16 + n0)  # 16 k-th distances per batch, not 16 k
 
 
 def test_particle_reward_larger_for_spread_states():

@@ -24,10 +24,11 @@ class CIC(URLBDDPG):
     (:class:`~sb3_cic.callbacks.SkillGridSweepCallback`, the default) or fixes ``0.5 * 1`` like the
     reference code (``finetune_skill_choice="fixed"``).
 
-    Deliberate deviations from the reference code: the loss is the paper's cross-entropy (the code
-    subtracts exp(1/T) from the denominator); the reward divides by the running mean of the kNN
-    distances (the code divides by a running variance); k = 12 as in the paper (code: 16); the sweep
-    acts with the pre-trained policy (see the callback).
+    ``cic_variant="paper"`` (the default) follows the paper where the reference code differs: the loss is the
+    paper's cross-entropy (the code subtracts exp(1/T) from the denominator), the reward divides by the running
+    mean of the kNN distances (the code divides by a running variance) and k = 12 (code: 16).
+    ``cic_variant="code"`` makes those three choices as the reference code does, the choices behind the
+    published numbers (docs/methods.md). Either way the sweep acts with the pre-trained policy (see the callback).
 
     :param policy: policy (``"MlpPolicy"``)
     :param env: environment id, environment or VecEnv (wrapped with the skill wrapper if needed)
@@ -37,9 +38,10 @@ class CIC(URLBDDPG):
         give e.g. 16 with ``skill_dim`` 1, whose normalised 1-d embeddings carry no information)
     :param cic_lr: learning rate of the discriminator (1e-4)
     :param temperature: contrastive temperature (0.5)
-    :param knn_k: neighbours of the particle estimator (12)
+    :param knn_k: neighbours of the particle estimator (default 12; 16 with ``cic_variant="code"``)
     :param knn_clip: clip of the particle estimator (0.0005)
     :param finetune_skill_choice: "sweep" (paper) or "fixed" (0.5, reference code)
+    :param cic_variant: "paper" or "code" (the reference code's loss, reward normalisation and k; see above)
     :param kwargs: arguments of :class:`URLBDDPG` (``batch_size``, ``policy_kwargs``...)
     """
 
@@ -52,19 +54,21 @@ class CIC(URLBDDPG):
         cic_embed_dim: int | None = None,
         cic_lr: float = 1e-4,
         temperature: float = 0.5,
-        knn_k: int = 12,
+        knn_k: int | None = None,
         knn_clip: float = 0.0005,
         finetune_skill_choice: str = "sweep",
         skill_resample_every: int | None = 50,
+        cic_variant: str = "paper",
         **kwargs: Any,
     ) -> None:
         if finetune_skill_choice not in ("sweep", "fixed"):
             raise ValueError(f"finetune_skill_choice must be 'sweep' or 'fixed', got {finetune_skill_choice!r}")
+        self.cic_variant = cic_variant
         self.cic_hidden_dim = cic_hidden_dim
         self.cic_embed_dim = cic_embed_dim
         self.cic_lr = cic_lr
         self.temperature = temperature
-        self.knn_k = knn_k
+        self.knn_k = knn_k if knn_k is not None else (12 if cic_variant == "paper" else 16)
         self.knn_clip = knn_clip
         self.finetune_skill_choice = finetune_skill_choice
         prior = UniformSkillPrior(skill_dim)
@@ -81,6 +85,7 @@ class CIC(URLBDDPG):
             temperature=self.temperature,
             knn_k=self.knn_k,
             knn_clip=self.knn_clip,
+            variant=self.cic_variant,
         )
 
     def make_finetune_callback(self) -> BaseCallback:

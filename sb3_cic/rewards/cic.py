@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import torch as th
 import torch.nn.functional as F
 from stable_baselines3.common.type_aliases import ReplayBufferSamples
@@ -17,9 +19,12 @@ class CICReward(RewardModule):
       ``pred_net``: [g1(s), g1(s')] -> h -> h -> e (the key);
       ``skill_net`` g2: skill -> h -> h -> e (the query);
       the embedding size ``e`` is ``skill_dim`` as in the CIC code unless ``embed_dim`` is given.
-    * Loss (paper, Listing 2): cross-entropy of ``normalize(q) normalize(k)^T / temperature`` with the
-      diagonal as positives. (The reference code subtracts exp(1/T) from the denominator; not followed.)
-    * Reward: particle entropy (k nearest neighbours in the batch) of ``g1(s')``.
+    * Loss, ``variant="paper"`` (Listing 2): cross-entropy of the logits ``normalize(q) normalize(k)^T / T``
+      with the diagonal as positives. ``variant="code"`` (rll-research/cic): exp(1/T), the largest possible
+      positive term, is subtracted from each row's denominator:
+      ``log(max(sum_j exp(l_ij) - exp(1/T), 1e-6) + 1e-6) - l_ii``, averaged over the batch.
+    * Reward: particle entropy (k nearest neighbours in the batch) of ``g1(s')``, divided by the running
+      mean of the distances (``variant="code"``: by their running variance, as the CIC code does).
 
     :meth:`update_and_reward` computes ``g1(s)`` and ``g1(s')`` once for both the loss and the reward
     (the reward uses the networks as they were when the batch was sampled).
@@ -35,7 +40,8 @@ class CICReward(RewardModule):
     :param knn_k: neighbours of the entropy estimator (12)
     :param knn_clip: clip of the entropy estimator (0.0005)
     :param knn_avg: average the k distances
-    :param knn_rms: divide by the running mean of the distances
+    :param knn_rms: divide by the running mean (variant "code": variance) of the distances
+    :param variant: "paper" (the paper's loss and reward) or "code" (the reference code's, see above)
     """
 
     def __init__(
@@ -51,22 +57,30 @@ class CICReward(RewardModule):
         knn_clip: float = 0.0005,
         knn_avg: bool = True,
         knn_rms: bool = True,
+        variant: str = "paper",
     ) -> None:
+        if variant not in ("paper", "code"):
+            raise ValueError(f"the CIC variant must be 'paper' or 'code', got {variant!r}")
         super().__init__(state_dim, action_dim, skill_dim, lr)
         self.temperature = temperature
+        self.variant = variant
         embed_dim = embed_dim or skill_dim
         self.state_net = mlp(state_dim, hidden_dim, embed_dim)
         self.pred_net = mlp(2 * embed_dim, hidden_dim, embed_dim)
         self.skill_net = mlp(skill_dim, hidden_dim, embed_dim)
-        self.particle = ParticleEntropy(k=knn_k, avg=knn_avg, rms=knn_rms, clip=knn_clip)
+        divide_by = "mean" if variant == "paper" else "var"
+        self.particle = ParticleEntropy(k=knn_k, avg=knn_avg, rms=knn_rms, clip=knn_clip, divide_by=divide_by)
         self.make_optimizer()
 
     def contrastive_loss(self, query: th.Tensor, key: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
-        """Cross-entropy of the normalised ``query @ key.T / T`` with diagonal labels; also top-1 accuracy."""
+        """The contrastive loss of the normalised ``query @ key.T / T`` (diagonal positives); also top-1 accuracy."""
         logits = F.normalize(query, dim=1) @ F.normalize(key, dim=1).T / self.temperature
         labels = th.arange(logits.shape[0], device=logits.device)
         accuracy = (logits.argmax(dim=1) == labels).float().mean()
-        return F.cross_entropy(logits, labels), accuracy
+        if self.variant == "paper":
+            return F.cross_entropy(logits, labels), accuracy
+        negatives = (logits.exp().sum(dim=1) - math.exp(1.0 / self.temperature)).clamp_min(1e-6)
+        return (th.log(negatives + 1e-6) - logits.diagonal()).mean(), accuracy
 
     def _loss(self, batch: ReplayBufferSamples) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
         state, skill = self.split(batch.observations)

@@ -61,30 +61,40 @@ def knn_distances(source: th.Tensor, target: th.Tensor, k: int) -> th.Tensor:
 
 
 class ParticleEntropy(nn.Module):
-    """APT's particle entropy reward: ``log(c + x)`` of the (normalised, clipped) kNN distance.
+    """APT's particle entropy reward: ``log(c + x)`` of the (normalised, clipped) kNN distances.
 
-    With ``avg=True``: ``x = max(mean_k(d) / m - clip, 0)``, where ``m`` is the running mean of the
-    distances when ``rms=True`` (1 otherwise); with ``avg=False`` the k-th distance replaces the mean.
+    With ``avg=True``: ``x = mean_k(max(d_k / m - clip, 0))``, each of the k distances normalised and clipped
+    before the average, as URLB's ``PBE`` and the CIC code do (a point's zero distance to itself counts 0);
+    ``m`` is the running mean of the distances when ``rms=True`` (1 otherwise), which all k distances of the
+    batch update. With ``avg=False`` the k-th distance alone is kept, and it alone updates the running statistics.
 
     :param k: number of neighbours (URLB and the CIC paper: 12)
     :param avg: average over the k neighbours (else keep the k-th)
-    :param rms: divide by the running mean of the kNN distances
-    :param clip: subtracted before flooring at 0
+    :param rms: divide by the running statistic of the kNN distances
+    :param clip: subtracted from each normalised distance before flooring at 0 (negative: no clip, no floor)
     :param c: constant inside the log
+    :param divide_by: the running statistic: "mean" (URLB, the CIC paper) or "var", the running variance that
+        the CIC code divides by (its ``moving_std`` is the variance)
     """
 
-    def __init__(self, k: int = 12, avg: bool = True, rms: bool = True, clip: float = 0.0005, c: float = 1.0) -> None:
+    def __init__(
+        self, k: int = 12, avg: bool = True, rms: bool = True, clip: float = 0.0005, c: float = 1.0, divide_by: str = "mean"
+    ) -> None:
         super().__init__()
-        self.k, self.avg, self.use_rms, self.clip, self.c = k, avg, rms, clip, c
+        if divide_by not in ("mean", "var"):
+            raise ValueError(f"divide_by must be 'mean' or 'var', got {divide_by!r}")
+        self.k, self.avg, self.use_rms, self.clip, self.c, self.divide_by = k, avg, rms, clip, c, divide_by
         self.rms = RunningMeanStd()
 
     def forward(self, source: th.Tensor, target: th.Tensor | None = None) -> th.Tensor:
         """Reward of each ``source`` row against the ``target`` particles (default: ``source``), ``(B, 1)``."""
         target = source if target is None else target
-        dist = knn_distances(source, target, min(self.k, target.shape[0]))
-        x = dist.mean(dim=1, keepdim=True) if self.avg else dist[:, -1:]
+        x = knn_distances(source, target, min(self.k, target.shape[0]))
+        if not self.avg:
+            x = x[:, -1:]
         if self.use_rms:
-            self.rms.update(dist.reshape(-1, 1))
-            x = x / self.rms.mean
-        x = th.clamp_min(x - self.clip, 0.0) if self.clip >= 0 else x
-        return th.log(self.c + x)
+            self.rms.update(x.reshape(-1, 1))
+            x = x / (self.rms.mean if self.divide_by == "mean" else self.rms.var)
+        if self.clip >= 0:
+            x = th.clamp_min(x - self.clip, 0.0)
+        return th.log(self.c + x.mean(dim=1, keepdim=True))
