@@ -4,10 +4,13 @@ Given a pre-training snapshot (and optionally the tensorboard run of its pre-tra
 
 * **pre-training curves**: contrastive loss, discriminator top-1 accuracy, intrinsic reward mean
   and std, read from tensorboard every ``--every`` steps;
-* **discriminator on fresh rollouts**: the snapshot's policy acts with exploration noise 0.2 and a
-  skill resampled every 50 steps (as in pre-training); on batches of ``(s, z, s_{t+3})`` from those
-  rollouts the contrastive loss and top-1 accuracy against chance (``log B``, ``1 / B``) and the
-  intrinsic reward's mean and std;
+* **discriminator on batches of distinct skills** (:mod:`sb3_cic.diagnostics`): each batch holds one
+  transition ``(s_t, z, s_{t+3})`` per distinct skill, so chance is exactly ``log B`` and ``1 / B``;
+  from fresh rollouts of the policy (exploration noise 0.2, a skill every 50 steps, as in pre-training)
+  and, given ``--checkpoint`` (a study run's ``checkpoint.zip``, which holds the replay buffer), from
+  the replayed transitions the discriminator was trained on, both scored by the checkpoint's
+  discriminator;
+* **intrinsic reward** mean and std on random batches of fresh rollouts;
 * **coverage**: particle entropy (mean ``log(1 + mean 12-NN distance)``) of visited states and the
   range of the walker's torso height, for the snapshot with random skills, an untrained CIC actor
   and uniformly random actions;
@@ -17,7 +20,8 @@ Given a pre-training snapshot (and optionally the tensorboard run of its pre-tra
   acting with the pre-trained policy) as fine-tuning runs it: the window returns and the best ``c``.
 
     MUJOCO_GL=disable python benchmarks/cic_diagnostics.py --snapshot STUDY/pretrain/cic_walker/snapshot_250000.zip \\
-        --tensorboard STUDY/tensorboard/pretrain_cic_walker_1 --tasks walker_flip walker_run
+        --tensorboard STUDY/tensorboard/pretrain_cic_walker_1 --tasks walker_flip walker_run \\
+        --checkpoint COPY_OF_A_PRETRAINING_CHECKPOINT.zip
 """
 
 from __future__ import annotations
@@ -33,10 +37,10 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 import gymnasium as gym  # noqa: E402
 import numpy as np  # noqa: E402
 import torch as th  # noqa: E402
-from stable_baselines3.common.type_aliases import ReplayBufferSamples  # noqa: E402
 
 import sb3_cic  # noqa: E402,F401
 from sb3_cic import CIC, SkillGridSweepCallback  # noqa: E402
+from sb3_cic.diagnostics import discriminator_scores, one_per_skill, replay_one_per_skill, skill_rollout  # noqa: E402
 from sb3_cic.rewards.particle import knn_distances  # noqa: E402
 
 #: index of the torso height in the walker observation (orientations 14, height 1, velocity 9)
@@ -90,27 +94,42 @@ def particle_entropy(states: np.ndarray, scale: np.ndarray, n: int = 2000, k: in
     return float(th.log1p(knn_distances(x, x, k + 1)[:, 1:].mean(dim=1)).mean())
 
 
-def discriminator(model: CIC, data: dict[str, np.ndarray], batch: int, n_step: int = 3) -> dict[str, float]:
-    """Contrastive loss, accuracy and intrinsic reward on batches of (s, z, s_{t+n}) within a skill."""
-    states, skills = data["states"], data["skills"]
+def intrinsic_reward(model: CIC, data: dict[str, np.ndarray], batch: int, n_step: int = 3) -> tuple[float, float]:
+    """Mean and std of the intrinsic reward on random batches of (s, z, s_{t+n}) within a skill."""
+    states = data["states"]
     idx = np.array([t for t in range(len(states) - n_step) if (t % 50) + n_step < 50 and (t % 1000) + n_step < 1000])
     rng = np.random.default_rng(0)
-    losses, accuracies, rewards = [], [], []
-    module = model.reward_module
+    rewards = []
     for _ in range(20):
         b = rng.choice(idx, size=batch, replace=False)
-        obs = th.as_tensor(np.concatenate([states[b], skills[b]], 1), device=model.device)
-        next_obs = th.as_tensor(np.concatenate([states[b + n_step], skills[b]], 1), device=model.device)
-        zeros = th.zeros(batch, 1, device=model.device)
-        sample = ReplayBufferSamples(obs, zeros, next_obs, zeros, zeros, None)
         with th.no_grad():
-            loss, accuracy, next_embedding = module._loss(sample)
-            reward = module.particle(next_embedding)
-        losses.append(loss.item())
-        accuracies.append(accuracy.item())
-        rewards.append(reward.cpu().numpy())
+            embedding = model.reward_module.state_net(th.as_tensor(states[b + n_step], device=model.device))
+            rewards.append(model.reward_module.particle(embedding).cpu().numpy())
     r = np.concatenate(rewards)
-    return {"loss": float(np.mean(losses)), "accuracy": float(np.mean(accuracies)), "reward_mean": float(r.mean()), "reward_std": float(r.std())}
+    return float(r.mean()), float(r.std())
+
+
+def distinct_skill_scores(model: CIC, domain_id: str, batch: int, batches: int, seed: int,
+                          buffer_model: CIC | None = None) -> list[str]:
+    """Markdown rows: the discriminator on batches of ``batch`` distinct skills, fresh and (given) replayed."""
+    rows = []
+    segments = skill_rollout(model, domain_id, batch * batches, model.skill_dim, seed=seed + 1)
+    rng = np.random.default_rng(seed)
+    fresh = [discriminator_scores(model.reward_module, *one_per_skill(segments[i * batch : (i + 1) * batch], 3, rng))
+             for i in range(batches)]
+    rows.append(("fresh rollouts of the policy", fresh))
+    if buffer_model is not None:
+        replayed = []
+        for _ in range(batches):
+            sample = replay_one_per_skill(buffer_model.replay_buffer, batch, rng)
+            replayed.append(discriminator_scores(model.reward_module, sample.observations, sample.next_observations))
+        rows.append((f"replayed (its buffer, {buffer_model.replay_buffer.pos} transitions)", replayed))
+    lines = ["| batches of distinct skills | contrastive loss | accuracy |", "|---|---:|---:|"]
+    for name, scores in rows:
+        loss, acc = [np.array([s[key] for s in scores]) for key in ("loss", "accuracy")]
+        lines.append(f"| {name} | {loss.mean():.3f} +- {loss.std():.3f} | {acc.mean():.4f} +- {acc.std():.4f} |")
+    lines.append(f"| chance | {math.log(batch):.3f} | {1 / batch:.4f} |")
+    return lines
 
 
 def skill_dependence(model: CIC, states: np.ndarray, n: int = 1000, seed: int = 0) -> float:
@@ -138,17 +157,34 @@ def main() -> None:
     parser.add_argument("--tensorboard", default=None, help="tensorboard run of the pre-training")
     parser.add_argument("--every", type=int, default=25_000, help="steps between rows of the pre-training curves")
     parser.add_argument("--domain-id", default="URLB/walker-v0")
+    parser.add_argument("--height-index", type=int, default=WALKER_HEIGHT,
+                        help="state entry whose range is shown (walker: 14, its torso height)")
     parser.add_argument("--tasks", nargs="*", default=["walker_flip", "walker_run"])
     parser.add_argument("--steps", type=int, default=5000, help="env steps per coverage rollout")
     parser.add_argument("--batch", type=int, default=256)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--checkpoint", default=None,
+                        help="a pre-training's checkpoint.zip (a copy): its discriminator on its replay buffer and on fresh rollouts")
+    parser.add_argument("--disc-batches", type=int, default=4, help="batches of distinct skills per measure")
     args = parser.parse_args()
     th.set_num_threads(1)
 
     model = CIC.load(args.snapshot, device="cpu")
+    print(f"# CIC diagnostics: {args.snapshot}\n")
+    print(f"## Discriminator on batches of {args.batch} distinct skills ({args.disc_batches} batches, mean +- std)\n")
+    print("Snapshot:\n")
+    print("\n".join(distinct_skill_scores(model, args.domain_id, args.batch, args.disc_batches, args.seed)) + "\n")
+    if args.checkpoint:
+        from sb3_cic.study.checkpoint import RunFolder
+
+        folder = RunFolder(os.path.dirname(os.path.abspath(args.checkpoint)))
+        checkpointed = folder.load_model(CIC, args.domain_id, device="cpu")
+        print(f"Checkpoint at step {checkpointed.num_timesteps} (its own discriminator):\n")
+        print("\n".join(distinct_skill_scores(checkpointed, args.domain_id, args.batch, args.disc_batches, args.seed,
+                                             buffer_model=checkpointed)) + "\n")
+        del checkpointed
     untrained = CIC("MlpPolicy", args.domain_id, skill_dim=model.skill_dim, policy_kwargs=model.policy_kwargs,
                     buffer_size=1024, seed=args.seed, device="cpu")
-    print(f"# CIC diagnostics: {args.snapshot}\n")
     if args.tensorboard:
         print("## Pre-training curves (tensorboard)\n")
         print("\n".join(pretraining_curves(args.tensorboard, args.every)) + "\n")
@@ -159,16 +195,15 @@ def main() -> None:
         "uniformly random actions": rollout(None, args.domain_id, args.steps, args.seed, model.skill_dim),
     }
     scale = runs["uniformly random actions"]["states"].std(0) + 1e-6
-    print(f"## Discriminator and coverage on fresh rollouts ({args.steps} steps each, batches of {args.batch})\n")
-    print(f"Chance: loss log B = {math.log(args.batch):.3f}, accuracy 1/B = {1 / args.batch:.4f}. "
-          "Particle entropy on states divided by the random-action std per dimension.\n")
-    print("| rollout | contrastive loss | accuracy | intrinsic reward mean +- std | particle entropy | torso height min / max |")
-    print("|---|---:|---:|---:|---:|---:|")
+    print(f"## Intrinsic reward and coverage on fresh rollouts ({args.steps} steps each, random batches of {args.batch})\n")
+    print("Particle entropy on states divided by the random-action std per dimension.\n")
+    print(f"| rollout | intrinsic reward mean +- std | particle entropy | state[{args.height_index}] min / max |")
+    print("|---|---:|---:|---:|")
     for name, data in runs.items():
-        d = discriminator(model, data, args.batch)
-        height = data["states"][:, WALKER_HEIGHT]
-        print(f"| {name} | {d['loss']:.3f} | {d['accuracy']:.3f} | {d['reward_mean']:.3f} +- {d['reward_std']:.3f} | "
-              f"{particle_entropy(data['states'], scale):.3f} | {height.min():.2f} / {height.max():.2f} |")
+        mean, std = intrinsic_reward(model, data, args.batch)
+        height = data["states"][:, args.height_index]
+        print(f"| {name} | {mean:.3f} +- {std:.3f} | {particle_entropy(data['states'], scale):.3f} | "
+              f"{height.min():.2f} / {height.max():.2f} |")
 
     states = runs["pre-trained policy, random skills"]["states"]
     print(f"\nSkill dependence (mean |mu(s, z1) - mu(s, z2)|, actions in [-1, 1]^{model.action_space.shape[0]}): "
