@@ -164,7 +164,7 @@ def main() -> None:
     parser.add_argument("--batch", type=int, default=256)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--checkpoint", default=None,
-                        help="a pre-training's checkpoint.zip (a copy): its discriminator on its replay buffer and on fresh rollouts")
+                        help="a pre-training's checkpoint.zip (a copy): its discriminator on its buffer and on fresh rollouts")
     parser.add_argument("--disc-batches", type=int, default=4, help="batches of distinct skills per measure")
     args = parser.parse_args()
     th.set_num_threads(1)

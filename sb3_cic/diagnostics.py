@@ -83,22 +83,36 @@ def one_per_skill(segments: list[np.ndarray], n_step: int, rng: np.random.Genera
     return obs, next_obs
 
 
-def replay_one_per_skill(buffer: URLBReplayBuffer, n: int, rng: np.random.Generator) -> ReplayBufferSamples:
+def stored_skills(buffer: URLBReplayBuffer) -> np.ndarray:
+    """For each stored transition of a skill buffer (one env), the index of its skill among the distinct stored skills."""
+    if buffer.skill_dim <= 0 or buffer.n_envs != 1:
+        raise ValueError(f"a buffer of skills from one env is needed (skill_dim {buffer.skill_dim}, n_envs {buffer.n_envs})")
+    stored = buffer.buffer_size if buffer.full else buffer.pos
+    _, skill_of = np.unique(buffer.observations[:stored, 0, -buffer.skill_dim :], axis=0, return_inverse=True)
+    return skill_of.reshape(-1)
+
+
+def replay_one_per_skill(
+    buffer: URLBReplayBuffer,
+    n: int,
+    rng: np.random.Generator,
+    indices: np.ndarray | None = None,
+    skill_of: np.ndarray | None = None,
+) -> ReplayBufferSamples:
     """A batch of the replay buffer's transitions as training samples them (n-step next observation), holding
     one transition per distinct skill: ``n`` skills drawn among the stored ones, one transition of each.
 
     :param buffer: a filled skill buffer (``skill_dim > 0``, one env)
     :param n: number of skills (at most the number of distinct stored skills)
     :param rng: random generator
+    :param indices: draw only from these stored transitions (default: all)
+    :param skill_of: :func:`stored_skills` of the buffer, if already computed
     """
-    if buffer.skill_dim <= 0 or buffer.n_envs != 1:
-        raise ValueError(f"a buffer of skills from one env is needed (skill_dim {buffer.skill_dim}, n_envs {buffer.n_envs})")
-    stored = buffer.buffer_size if buffer.full else buffer.pos
-    _, skill_of = np.unique(buffer.observations[:stored, 0, -buffer.skill_dim :], axis=0, return_inverse=True)
-    order = rng.permutation(stored)
-    _, first = np.unique(skill_of.reshape(-1)[order], return_index=True)  # a random transition of each skill
+    skill_of = stored_skills(buffer) if skill_of is None else skill_of
+    order = rng.permutation(len(skill_of) if indices is None else indices)
+    _, first = np.unique(skill_of[order], return_index=True)  # a random transition of each skill
     if n > len(first):
-        raise ValueError(f"the buffer holds {len(first)} distinct skills, fewer than {n}")
+        raise ValueError(f"the transitions hold {len(first)} distinct skills, fewer than {n}")
     return buffer._get_samples(order[rng.choice(first, size=n, replace=False)])
 
 
@@ -106,14 +120,17 @@ def replay_one_per_skill(buffer: URLBReplayBuffer, n: int, rng: np.random.Genera
 def discriminator_scores(module: CICReward, obs: th.Tensor | np.ndarray, next_obs: th.Tensor | np.ndarray) -> dict[str, float]:
     """The discriminator's contrastive loss and top-1 accuracy on one batch, beside chance (``log B``, ``1/B``).
 
-    Chance is exact only when the batch holds one transition per distinct skill (see the module docstring).
+    The loss is the paper's cross-entropy whatever the module's variant (chance is ``log B`` for it); chance is
+    exact only when the batch holds one transition per distinct skill (see the module docstring).
 
-    :param module: the CIC reward module (its own loss: the paper's or the code's)
+    :param module: the CIC reward module
     :param obs: ``(B, state + skill)`` observations ``[s, z]``
     :param next_obs: ``(B, state + skill)`` next observations ``[s', z]``
     """
     device = module.particle.rms.mean.device
     obs, next_obs = th.as_tensor(obs, device=device), th.as_tensor(next_obs, device=device)
     zeros = th.zeros(len(obs), 1, device=device)
-    loss, accuracy, _ = module._loss(ReplayBufferSamples(obs, zeros, next_obs, zeros, zeros, None))
-    return {"loss": loss.item(), "accuracy": accuracy.item(), "chance_loss": math.log(len(obs)), "chance_accuracy": 1 / len(obs)}
+    query, key, _ = module.query_key(ReplayBufferSamples(obs, zeros, next_obs, zeros, zeros, None))
+    loss, accuracy = module.contrastive_loss(query, key, variant="paper")
+    n = len(obs)
+    return {"loss": loss.item(), "accuracy": accuracy.item(), "chance_loss": math.log(n), "chance_accuracy": 1 / n}

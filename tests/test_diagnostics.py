@@ -9,7 +9,7 @@ from torch import nn
 
 import sb3_cic  # noqa: F401
 from sb3_cic import CIC
-from sb3_cic.diagnostics import discriminator_scores, one_per_skill, replay_one_per_skill, skill_rollout
+from sb3_cic.diagnostics import discriminator_scores, one_per_skill, replay_one_per_skill, skill_rollout, stored_skills
 from sb3_cic.rewards.cic import CICReward
 
 
@@ -34,7 +34,10 @@ def test_a_discriminator_handed_the_skill_is_near_perfect_and_a_random_one_is_at
     perfect = discriminator_scores(handed, obs, next_obs)
     assert perfect["chance_loss"] == pytest.approx(math.log(64)) and perfect["chance_accuracy"] == pytest.approx(1 / 64)
     assert perfect["accuracy"] >= 0.95 and perfect["loss"] < 0.9 * math.log(64)
-    random = [discriminator_scores(CICReward(8, 2, skill_dim=8, hidden_dim=16), *distinct_skill_batch(seed=s)) for s in range(10)]
+    handed.variant = "code"  # scored with the paper's cross-entropy whatever the training loss (chance: log B)
+    assert discriminator_scores(handed, obs, next_obs) == perfect
+    random = [discriminator_scores(CICReward(8, 2, skill_dim=8, hidden_dim=16), *distinct_skill_batch(seed=s))
+              for s in range(10)]
     assert np.mean([r["loss"] for r in random]) == pytest.approx(math.log(64), rel=0.05)
     assert np.mean([r["accuracy"] for r in random]) < 0.1  # chance 1/64; the handed one scores >= 0.95
 
@@ -61,7 +64,16 @@ def test_replayed_batches_hold_one_transition_per_skill():
     assert batch.observations.shape == (20, 4 + 3) and len(np.unique(skills, axis=0)) == 20
     scores = discriminator_scores(model.reward_module, batch.observations, batch.next_observations)
     assert 0.0 <= scores["accuracy"] <= 1.0 and scores["chance_loss"] == pytest.approx(math.log(20))
-    with pytest.raises(ValueError, match="distinct skills, fewer than 100"):
+    with pytest.raises(ValueError, match="hold 30 distinct skills, fewer than 100"):
         replay_one_per_skill(model.replay_buffer, 100, np.random.default_rng(0))
+    skill_of = stored_skills(model.replay_buffer)
+    assert len(skill_of) == 600 and skill_of.max() == 29
+    among = np.flatnonzero(skill_of < 10)  # draw only from the transitions of ten of the skills
+    part = replay_one_per_skill(model.replay_buffer, 10, np.random.default_rng(1), indices=among, skill_of=skill_of)
+    stored = model.replay_buffer.observations[among, 0, -3:]
+    assert all((stored == z).all(axis=1).any() for z in part.observations[:, -3:].numpy())
+    assert len(np.unique(part.observations[:, -3:].numpy(), axis=0)) == 10
+    with pytest.raises(ValueError, match="hold 10 distinct skills, fewer than 11"):
+        replay_one_per_skill(model.replay_buffer, 11, np.random.default_rng(1), indices=among, skill_of=skill_of)
     fresh = skill_rollout(model, "URLB/point_mass-v0", n_skills=4, skill_dim=3, segment=5)
     assert [rows.shape for rows in fresh] == [(6, 7)] * 4

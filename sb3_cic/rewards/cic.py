@@ -72,23 +72,31 @@ class CICReward(RewardModule):
         self.particle = ParticleEntropy(k=knn_k, avg=knn_avg, rms=knn_rms, clip=knn_clip, divide_by=divide_by)
         self.make_optimizer()
 
-    def contrastive_loss(self, query: th.Tensor, key: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
-        """The contrastive loss of the normalised ``query @ key.T / T`` (diagonal positives); also top-1 accuracy."""
+    def contrastive_loss(self, query: th.Tensor, key: th.Tensor, variant: str | None = None) -> tuple[th.Tensor, th.Tensor]:
+        """The contrastive loss of the normalised ``query @ key.T / T`` (diagonal positives); also top-1 accuracy.
+
+        :param variant: "paper" or "code" (default: the module's)
+        """
         logits = F.normalize(query, dim=1) @ F.normalize(key, dim=1).T / self.temperature
         labels = th.arange(logits.shape[0], device=logits.device)
         accuracy = (logits.argmax(dim=1) == labels).float().mean()
-        if self.variant == "paper":
+        if (variant or self.variant) == "paper":
             return F.cross_entropy(logits, labels), accuracy
         negatives = (logits.exp().sum(dim=1) - math.exp(1.0 / self.temperature)).clamp_min(1e-6)
         return (th.log(negatives + 1e-6) - logits.diagonal()).mean(), accuracy
 
-    def _loss(self, batch: ReplayBufferSamples) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
+    def query_key(self, batch: ReplayBufferSamples) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
+        """The queries ``g2(z)``, the keys ``pred([g1(s), g1(s')])`` and the embeddings ``g1(s')`` of a batch."""
         state, skill = self.split(batch.observations)
         next_state = batch.next_observations[:, : self.state_dim]
         embedding = self.state_net(th.cat([state, next_state], dim=0))
         key = self.pred_net(th.cat(embedding.chunk(2, dim=0), dim=1))
-        loss, accuracy = self.contrastive_loss(self.skill_net(skill), key)
-        return loss, accuracy, embedding[state.shape[0] :]
+        return self.skill_net(skill), key, embedding[state.shape[0] :]
+
+    def _loss(self, batch: ReplayBufferSamples) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
+        query, key, next_embedding = self.query_key(batch)
+        loss, accuracy = self.contrastive_loss(query, key)
+        return loss, accuracy, next_embedding
 
     def update(self, batch: ReplayBufferSamples) -> dict[str, th.Tensor]:
         loss, accuracy, _ = self._loss(batch)
