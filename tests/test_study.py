@@ -277,3 +277,28 @@ def test_checkpoint_write_is_atomic(tmp_path: Path, monkeypatch: pytest.MonkeyPa
     loaded = folder.load_model(URLBDDPG, "URLB/walker-stand-v0", device="cpu")
     folder.restore(loaded, [])
     assert loaded.num_timesteps == 1000 and loaded.replay_buffer.size() == 1000
+
+
+def test_fine_tuning_from_an_intermediate_snapshot(ray_instance, tmp_path: Path, capsys: pytest.CaptureFixture):
+    """--from-snapshot: the runs start from that snapshot, in <method>@STEP folders; study.json rows of 4 still read."""
+    settings = replace(SETTINGS, snapshots=(500,))
+    study = tmp_path / "study"
+    with pytest.raises(ValueError, match="snapshot at 700 steps needs it among the intermediate snapshots"):
+        run_study(study, ["cic"], ["walker"], ["stand"], [0], settings, from_snapshot=700, progress_bar=False)
+    assert not study.exists()
+    runs, statuses = run_study(study, ["cic", "ddpg"], ["walker"], ["stand"], [0], settings, from_snapshot=500,
+                               progress_bar=False)
+    assert [str(r) for r in runs] == ["pretrain cic walker", "cic@500 walker_stand seed 0", "ddpg walker_stand seed 0"]
+    assert [s["state"] for s in statuses] == ["done"] * 3
+    result = json.loads((study / "finetune" / "cic@500" / "walker_stand" / "seed_0" / "result.json").read_text())
+    assert result["label"] == "cic@500" and result["snapshot_steps"] == 500
+    assert (study / "finetune" / "ddpg" / "walker_stand" / "seed_0" / "result.json").exists()  # from scratch: no snapshot
+    rows = json.loads((study / "study.json").read_text())["runs"]
+    assert ["cic", "walker", "walker_stand", 0, 500] in rows and ["cic", "walker", None, 0, None] in rows
+    data = json.loads((study / "study.json").read_text())
+    data["runs"] = [row[:4] if row[4] is None else row for row in rows]  # rows of 4: written before snapshots counted
+    (study / "study.json").write_text(json.dumps(data))
+    runs, statuses = run_study(study, ["cic"], ["walker"], ["stand"], [0], settings, progress_bar=False)  # final snapshot
+    assert [s["run"] for s in statuses] == ["cic walker_stand seed 0"]
+    text, finished = status_report(study)
+    assert finished and "4 runs, 4 done" in text and "| cic | walker | 3 | 0 | 0 | 0 |" in text

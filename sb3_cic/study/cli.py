@@ -21,6 +21,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--tasks", nargs="+", default=None, help="tasks (flip or walker_flip; default: each domain's)")
     parser.add_argument("--seeds", nargs="+", type=int, default=list(range(10)), help="fine-tuning seeds (default 0..9)")
     parser.add_argument("--pretrain-seed", type=int, default=0)
+    parser.add_argument("--from-snapshot", type=int, default=None, metavar="STEP",
+                        help="fine-tune from the snapshot at this pre-training step (one of --snapshots; default: "
+                        "the final one); the runs are <method>@STEP")
     add_settings_arguments(parser)
     parser.add_argument("--address", default=None, help="join a running Ray cluster (auto, ray://host:10001...)")
     parser.add_argument("--workers", type=int, default=1, help="runs at a time of the local Ray instance (no --address)")
@@ -42,7 +45,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             args.study, args.methods, args.domains, args.tasks, args.seeds, settings,
             pretrain_seed=args.pretrain_seed, address=args.address, workers=args.workers,
             cpus_per_run=args.cpus_per_run, gpus_per_run=args.gpus_per_run, max_retries=args.max_retries,
-            progress_bar=not args.no_progress,
+            progress_bar=not args.no_progress, from_snapshot=args.from_snapshot,
         )
     except ValueError as error:
         raise SystemExit(f"sb3-cic study: error: {error}") from None

@@ -42,7 +42,8 @@ def execute(
         if run.task is None:
             protocol.pretrain(study, run.method, run.domain, settings, seed=pretrain_seed)
         else:
-            protocol.finetune(study, run.method, run.domain, run.task, run.seed, settings, from_scratch=run.from_scratch)
+            protocol.finetune(study, run.method, run.domain, run.task, run.seed, settings, snapshot=run.snapshot,
+                              from_scratch=run.from_scratch)
     except Exception as error:  # recorded; the study goes on
         folder.fail(traceback.format_exc())
         return {"run": str(run), "state": "failed", "error": f"{type(error).__name__}: {error}"}
@@ -143,6 +144,7 @@ def run_study(
     gpus_per_run: float = 0,
     max_retries: int = 3,
     progress_bar: bool = True,
+    from_snapshot: int | None = None,
 ) -> tuple[list[Run], list[dict[str, Any]]]:
     """``sb3-cic study``: build the job graph, check it against the study folder, run what is left on Ray.
 
@@ -163,6 +165,8 @@ def run_study(
     :param gpus_per_run: GPUs of each run (a fraction shares a GPU)
     :param max_retries: times Ray starts a run again after its worker died
     :param progress_bar: show a progress bar over the runs
+    :param from_snapshot: fine-tune from the pre-training's snapshot at this step (one of ``settings.snapshots``;
+        None: the final one); the runs are ``cic@<step>`` in the study's folders and reports
     :return: the command's runs and the statuses of those that ran now
     """
     import ray
@@ -173,7 +177,10 @@ def run_study(
         raise ValueError(f"cpus_per_run must be > 0 and gpus_per_run >= 0, got {cpus_per_run!r} and {gpus_per_run!r}")
     if not isinstance(max_retries, int) or max_retries < -1:
         raise ValueError(f"max_retries must be an int >= -1 (-1: no limit), got {max_retries!r}")
-    runs = build_graph(methods, domains, tasks, seeds, pretrain_seed)
+    if from_snapshot is not None and (from_snapshot not in settings.snapshots or from_snapshot == settings.pretrain_steps):
+        raise ValueError(f"fine-tuning from the snapshot at {from_snapshot} steps needs it among the intermediate "
+                         f"snapshots (--snapshots {' '.join(map(str, settings.snapshots))}); the final one is the default")
+    runs = build_graph(methods, domains, tasks, seeds, pretrain_seed, from_snapshot)
     todo = check_study(study, runs, settings, pretrain_seed)
     record_study_settings(study, settings, pretrain_seed)
     record_runs(study, runs)

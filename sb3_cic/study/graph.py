@@ -7,7 +7,7 @@ import json
 import os
 import socket
 from collections import Counter
-from dataclasses import dataclass
+from dataclasses import astuple, dataclass
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -39,12 +39,14 @@ class Run:
     :param domain: URLB domain
     :param task: URLB task name (``walker_flip``), None for a pre-training
     :param seed: the run's seed (a pre-training's: the study's pre-training seed)
+    :param snapshot: pre-training step of the snapshot a fine-tuning starts from (None: the final one)
     """
 
     method: str
     domain: str
     task: str | None
     seed: int
+    snapshot: int | None = None
 
     @property
     def kind(self) -> str:
@@ -57,10 +59,16 @@ class Run:
         return not zoo.has_reward_module(zoo.get_algo(self.method))
 
     def folder(self, study: str | Path) -> Path:
-        """The run's folder in ``study`` (the layout of :mod:`sb3_cic.protocol`; fine-tuning from the final snapshot)."""
+        """The run's folder in ``study`` (the layout of :mod:`sb3_cic.protocol`: ``cic@100000`` for a fine-tuning from
+        the snapshot at 100,000 steps)."""
         if self.task is None:
             return pretrain_dir(study, self.method, self.domain)
-        return finetune_dir(study, self.method, self.task, self.seed)
+        return finetune_dir(study, self.label, self.task, self.seed)
+
+    @property
+    def label(self) -> str:
+        """The method's name in the study's folders and reports (``cic``, ``cic@100000``)."""
+        return self.method if self.snapshot is None else f"{self.method}@{self.snapshot}"
 
     def dependency(self, pretrain_seed: int) -> Run | None:
         """The pre-training a fine-tuning starts from (None for a pre-training or a run from scratch)."""
@@ -69,7 +77,7 @@ class Run:
         return Run(self.method, self.domain, None, pretrain_seed)
 
     def __str__(self) -> str:
-        return f"pretrain {self.method} {self.domain}" if self.task is None else f"{self.method} {self.task} seed {self.seed}"
+        return f"pretrain {self.method} {self.domain}" if self.task is None else f"{self.label} {self.task} seed {self.seed}"
 
 
 def build_graph(
@@ -78,6 +86,7 @@ def build_graph(
     tasks: Sequence[str] | None,
     seeds: Sequence[int],
     pretrain_seed: int = 0,
+    from_snapshot: int | None = None,
 ) -> list[Run]:
     """The runs of a study command, each pre-training before the fine-tunings that depend on it.
 
@@ -89,6 +98,8 @@ def build_graph(
         each domain's tasks
     :param seeds: fine-tuning seeds
     :param pretrain_seed: seed of the pre-trainings
+    :param from_snapshot: fine-tune from the snapshot at this pre-training step (None: the final one); runs
+        from scratch ignore it
     """
     methods = all_methods() if list(methods) == ["all"] else [m.lower() for m in methods]
     domains = list(URLB_DOMAINS) if list(domains) == ["all"] else list(domains)
@@ -121,6 +132,7 @@ def build_graph(
             finetunes = [Run(method, domain, name, seed) for name in names for seed in seeds]
             if finetunes[0].dependency(pretrain_seed) is not None:
                 runs.append(Run(method, domain, None, pretrain_seed))
+                finetunes = [Run(method, domain, name, seed, from_snapshot) for name in names for seed in seeds]
             runs.extend(finetunes)
     return runs
 
@@ -142,9 +154,11 @@ def check_study(study: str | Path, runs: Sequence[Run], settings: Settings, pret
     for run in runs:
         folder = RunFolder(run.folder(study))
         if folder.done:
-            if run.task is None:  # its fine-tunings start from the final snapshot
-                result = json.loads(folder.result.read_text())
-                check_snapshot(folder.path / f"snapshot_{result['steps']}.zip")
+            if run.task is None:  # the snapshots its fine-tunings start from
+                final = json.loads(folder.result.read_text())["steps"]
+                needed = {final if r.snapshot is None else r.snapshot for r in runs if r.dependency(pretrain_seed) == run}
+                for step in sorted(needed or {final}):
+                    check_snapshot(folder.path / f"snapshot_{step}.zip")
             continue
         folder.read_meta()  # a ValueError for a corrupt or missing checkpoint
         todo.append(run)
@@ -160,9 +174,9 @@ def record_runs(study: str | Path, runs: Sequence[Run]) -> None:
     """
     path = Path(study) / "study.json"
     data = json.loads(path.read_text())
-    listed = {tuple(run) for run in data.get("runs", [])}
-    listed |= {(run.method, run.domain, run.task, run.seed) for run in runs}
-    data["runs"] = sorted(listed, key=lambda r: (r[0], r[1], r[2] or "", r[3]))
+    listed = {astuple(Run(*run)) for run in data.get("runs", [])}  # rows of 4 (before snapshot) or 5
+    listed |= {astuple(run) for run in runs}
+    data["runs"] = sorted(listed, key=lambda r: (r[0], r[1], r[2] or "", r[3], r[4] or 0))
     write_json(path, data)
 
 
@@ -174,7 +188,7 @@ def study_runs(study: str | Path) -> list[Run]:
     path = Path(study) / "study.json"
     if not path.is_file():
         raise ValueError(f"{study} is not a study folder (no study.json)")
-    return [Run(method, domain, task, seed) for method, domain, task, seed in json.loads(path.read_text()).get("runs", [])]
+    return [Run(*run) for run in json.loads(path.read_text()).get("runs", [])]
 
 
 def _alive(pid: int) -> bool:
