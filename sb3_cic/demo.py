@@ -1,75 +1,149 @@
-"""The main job at CPU size: CIC pre-training on walker, fine-tuning on a walker task, the score.
+"""The main job at CPU size: a pre-trained CIC walker fine-tuned on a task beside DDPG from scratch.
 
-Run with ``python -m sb3_cic.demo`` (``make demo``). Full-size settings (hidden 1024, batch 1024,
-2M + 100k steps) are GPU work; this demo uses small networks and short budgets so that it runs in
-a few minutes on 2 CPU cores. The score it prints is therefore far below the paper's.
+Run with ``python -m sb3_cic.demo`` (``make demo``). The package ships a CIC snapshot pre-trained
+reward-free on ``URLB/walker-v0`` (hidden 256, batch 256, 100k steps; ``sb3_cic/pretrained/``). The demo
+fine-tunes it on walker flip (the paper's skill grid sweep first) and trains DDPG from scratch with the
+same networks, batch and budget, evaluating both every ``--eval-every`` steps. It prints both learning
+curves, returns and normalised scores, and writes into ``--out``:
+
+* ``learning_curves.png``: return against fine-tuning steps, CIC and DDPG;
+* ``skills.mp4``: the snapshot's policy under 9 skills side by side, 150 steps each (needs OpenGL: ``MUJOCO_GL=egl``;
+  without it the video is skipped with the reason);
+* the fine-tuned models.
+
+The budgets are a few minutes of a 2-core CPU: far below URLB's 100k fine-tuning steps, so the scores
+show the start of learning, not the paper's numbers. ``--pretrain-steps N`` pre-trains a fresh CIC for
+N steps instead of using the shipped snapshot.
 """
 
 from __future__ import annotations
 
 import argparse
-import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
-import numpy as np
-from stable_baselines3.common.evaluation import evaluate_policy
+import gymnasium as gym
 from stable_baselines3.common.monitor import Monitor
 
-from envs import SkillObservationWrapper
-from sb3_cic import CIC, normalized_score
+from sb3_cic import CIC, URLBDDPG, URLBEvalCallback
+from sb3_cic.constants import EXPERT_SCORES
+from sb3_cic.ddpg import read_saved_data
+
+#: the shipped snapshot: CIC pre-trained reward-free on URLB/walker-v0, hidden 256, batch 256, 100k steps
+SNAPSHOT = Path(__file__).parent / "pretrained" / "cic_walker_h256_100k.zip"
 
 
-def main(argv: list[str] | None = None) -> float:
-    """Pre-train CIC reward-free, fine-tune with the skill grid sweep, print the normalised score.
+def pretrain(steps: int, out: Path, seed: int, hidden_dim: int = 256, batch_size: int = 256) -> Path:
+    """Pre-train a CIC on ``URLB/walker-v0`` for ``steps`` steps and save it under ``out``; return its path."""
+    model = CIC("MlpPolicy", "URLB/walker-v0", seed=seed, policy_kwargs={"hidden_dim": hidden_dim},
+                batch_size=batch_size, buffer_size=max(steps, 1), learning_starts=min(4000, steps // 2))
+    model.learn(steps, progress_bar=True)
+    model.save(out / "cic_pretrained")
+    return out / "cic_pretrained.zip"
+
+
+def plot_curves(curves: dict[str, list[tuple[int, float, float]]], task: str, path: Path, learning_starts: int) -> None:
+    """Return against steps, one line per method (``curves``: URLBEvalCallback histories)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5, 3.5))
+    for name, history in curves.items():
+        ax.plot([h[0] for h in history], [h[1] for h in history], marker="o", label=name)
+    ax.axvline(learning_starts, color="gray", linestyle=":", label="learning starts (CIC: skill fixed)")
+    ax.set_xlabel("fine-tuning steps")
+    ax.set_ylabel("return (deterministic episodes)")
+    ax.set_title(task)
+    ax.grid(alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    """Fine-tune the snapshot and train DDPG from scratch on the task; print and plot both.
 
     :param argv: command-line arguments (see ``--help``)
-    :return: the normalised score of the fine-tuned agent
+    :return: ``{"CIC": history, "DDPG": history, "files": [...]}``, a history being URLBEvalCallback's
+        ``(step, mean return, normalised score)`` list
     """
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--domain", default="walker")
-    parser.add_argument("--task", default="flip", help="task of the domain to fine-tune on")
-    parser.add_argument("--pretrain-steps", type=int, default=10_000)
-    parser.add_argument("--finetune-steps", type=int, default=10_000)
-    parser.add_argument("--learning-starts", type=int, default=2_000, help="random steps (and skill sweep) of each phase")
-    parser.add_argument("--hidden-dim", type=int, default=128)
-    parser.add_argument("--batch-size", type=int, default=128)
+    parser.add_argument("--task", default="flip", help="walker task to fine-tune on (stand, walk, run, flip)")
+    parser.add_argument("--snapshot", type=Path, default=SNAPSHOT, help="pre-trained CIC walker (default: the shipped one)")
+    parser.add_argument("--pretrain-steps", type=int, default=0, help="pre-train a fresh CIC for this long instead")
+    parser.add_argument("--hidden-dim", type=int, default=256, help="width of the fresh pre-training's networks")
+    parser.add_argument("--batch-size", type=int, default=256, help="batch of the fresh pre-training")
+    parser.add_argument("--steps", type=int, default=10_000, help="fine-tuning / from-scratch steps of each method")
+    parser.add_argument("--learning-starts", type=int, default=4_000,
+                        help="random steps before learning (CIC: its skill sweep, 100 steps per candidate)")
+    parser.add_argument("--eval-every", type=int, default=2_000)
     parser.add_argument("--eval-episodes", type=int, default=3)
+    parser.add_argument("--skills", type=int, default=9, help="skills in the video (0: no video)")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--out", type=Path, default=None, help="folder for the pre-trained model (default: a temp dir)")
+    parser.add_argument("--out", type=Path, default=Path("demo_output"), help="folder for the video, the plot and the models")
     args = parser.parse_args(argv)
-    small = dict(policy_kwargs={"hidden_dim": args.hidden_dim}, batch_size=args.batch_size,
-                 learning_starts=args.learning_starts, buffer_size=max(args.pretrain_steps, args.finetune_steps))
-    out = args.out or Path(tempfile.mkdtemp(prefix="sb3_cic_demo_"))
-    out.mkdir(parents=True, exist_ok=True)
-
+    if args.steps <= args.learning_starts or args.eval_every <= 0:
+        parser.error(f"need --steps > --learning-starts and --eval-every > 0 (got {args.steps}, {args.learning_starts}, "
+                     f"{args.eval_every})")
+    args.out.mkdir(parents=True, exist_ok=True)
+    task, env_id = f"walker_{args.task}", f"URLB/walker-{args.task}-v0"
     start = time.time()
-    print(f"[1/3] pre-training CIC reward-free on URLB/{args.domain}-v0 for {args.pretrain_steps} steps ...", flush=True)
-    model = CIC("MlpPolicy", f"URLB/{args.domain}-v0", seed=args.seed, **small)
-    model.learn(args.pretrain_steps, progress_bar=True)
-    metrics = model.logger.name_to_value
-    print(f"      contrastive loss {metrics['reward/contrastive_loss']:.3f}, discriminator accuracy "
-          f"{metrics['reward/disc_accuracy']:.3f}, intrinsic reward {metrics['reward/intrinsic_reward_mean']:.3f} "
-          f"({time.time() - start:.0f} s)")
-    model.save(out / "cic_pretrained")
 
-    task_id = f"URLB/{args.domain}-{args.task}-v0"
-    print(f"[2/3] fine-tuning on {task_id} for {args.finetune_steps} steps (skill grid sweep first) ...", flush=True)
-    finetuned = CIC.load_pretrained(out / "cic_pretrained", env=task_id, seed=args.seed)
-    finetuned.learn(args.finetune_steps, progress_bar=True)
-    skill = finetuned.finetune_skill
-    print(f"      chosen skill: c = {float(skill[0]):.3f} (constant skill c * 1)")
+    snapshot = args.snapshot
+    if args.pretrain_steps > 0:
+        print(f"[0/4] pre-training CIC reward-free on URLB/walker-v0 for {args.pretrain_steps} steps ...", flush=True)
+        snapshot = pretrain(args.pretrain_steps, args.out, args.seed, args.hidden_dim, args.batch_size)
+    data = read_saved_data(snapshot)
+    print(f"[1/4] snapshot {snapshot}: {data.get('algorithm', '?')} pre-trained reward-free on {data.get('env_id', '?')}, "
+          f"hidden {data['policy_kwargs'].get('hidden_dim')}, batch {data['batch_size']}, {data['num_timesteps']} steps")
 
-    print(f"[3/3] evaluating {args.eval_episodes} deterministic episodes ...", flush=True)
-    import gymnasium as gym
+    def evaluation() -> URLBEvalCallback:
+        env = Monitor(gym.make(env_id))
+        env.reset(seed=10_000 + args.seed)
+        return URLBEvalCallback(env, task=task, n_eval_episodes=args.eval_episodes, eval_freq=args.eval_every, verbose=0)
 
-    eval_env = SkillObservationWrapper(gym.make(task_id), finetuned.skill_prior)
-    eval_env.set_skill(skill)
-    mean, std = evaluate_policy(finetuned, Monitor(eval_env), n_eval_episodes=args.eval_episodes)
-    score = normalized_score(f"{args.domain}_{args.task}", mean)
-    print(f"\n{task_id}: return {mean:.1f} +- {std:.1f}, normalised score {score:.3f} "
-          f"(total {time.time() - start:.0f} s; URLB full size, CIC: {np.round(631 / 799, 2) if args.task == 'flip' else 'see README'})")
-    return score
+    print(f"[2/4] CIC: fine-tuning on {env_id} for {args.steps} steps (skill grid sweep over the first "
+          f"{args.learning_starts}) ...", flush=True)
+    cic = CIC.load_pretrained(snapshot, env=env_id, seed=args.seed, learning_starts=args.learning_starts,
+                              buffer_size=args.steps)
+    cic_eval = evaluation()
+    cic.learn(args.steps, callback=cic_eval, progress_bar=True)
+    cic.save(args.out / "cic_finetuned")
+    print(f"      chosen skill: c = {float(cic.finetune_skill[0]):.3f} (the constant skill c * 1)")
+
+    print(f"[3/4] DDPG from scratch on {env_id} for {args.steps} steps (same networks, batch and budget) ...", flush=True)
+    ddpg = URLBDDPG("MlpPolicy", env_id, seed=args.seed, policy_kwargs={"hidden_dim": cic.hidden_dim},
+                    batch_size=cic.batch_size, learning_starts=args.learning_starts, buffer_size=args.steps)
+    ddpg_eval = evaluation()
+    ddpg.learn(args.steps, callback=ddpg_eval, progress_bar=True)
+    ddpg.save(args.out / "ddpg")
+
+    print("[4/4] writing the learning curves and the skill video ...", flush=True)
+    curves = {"CIC (pre-trained)": cic_eval.history, "DDPG (from scratch)": ddpg_eval.history}
+    files = [args.out / "learning_curves.png"]
+    plot_curves(curves, env_id, files[0], args.learning_starts)
+    if args.skills > 0:
+        from sb3_cic.skill_video import show_skills
+
+        try:
+            show_skills(snapshot, n=args.skills, steps=150, size=128, out=args.out / "skills.mp4", seed=args.seed)
+            files.append(args.out / "skills.mp4")
+        except RuntimeError as error:  # no OpenGL backend (MUJOCO_GL unset or disable)
+            print(f"      no skill video: {error}")
+
+    print(f"\n{env_id}, {args.eval_episodes} deterministic episodes every {args.eval_every} steps (return):\n")
+    print(f"| step | {' | '.join(curves)} |\n|---:|" + "---:|" * len(curves))
+    for (step, cic_return, _), (_, ddpg_return, _) in zip(cic_eval.history, ddpg_eval.history):
+        print(f"| {step} | {cic_return:.1f} | {ddpg_return:.1f} |")
+    print(f"\nafter {args.steps} steps (normalised: return / expert {EXPERT_SCORES[task]}):")
+    for name, history in curves.items():
+        print(f"  {name:20s} return {history[-1][1]:7.1f}   normalised {history[-1][2]:.3f}")
+    print(f"\nwritten: {', '.join(str(f) for f in files)} (total {time.time() - start:.0f} s)")
+    return {"CIC": cic_eval.history, "DDPG": ddpg_eval.history, "files": files}
 
 
 if __name__ == "__main__":

@@ -1,0 +1,42 @@
+"""The demo (make demo): the shipped snapshot, and a tiny run of the whole job."""
+
+import math
+
+import pytest
+
+import sb3_cic  # noqa: F401
+from sb3_cic import CIC, demo
+from sb3_cic.ddpg import read_saved_data
+
+
+def test_shipped_snapshot_is_a_hidden_256_cic_walker():
+    data = read_saved_data(demo.SNAPSHOT)
+    assert data["algorithm"] == "CIC" and data["env_id"] == "URLB/walker-v0"
+    assert data["policy_kwargs"]["hidden_dim"] == 256 and data["batch_size"] == 256 and data["num_timesteps"] >= 100_000
+    model = CIC.load_pretrained(demo.SNAPSHOT, env="URLB/walker-flip-v0", buffer_size=100)
+    assert model.reward_free is False and model.num_timesteps == 0 and model.skill_dim == 64
+
+
+def test_demo_fine_tunes_beside_ddpg_and_writes_the_curves(tmp_path, capsys):
+    snapshot = tmp_path / "tiny"
+    pretrained = CIC("MlpPolicy", "URLB/walker-v0", policy_kwargs={"hidden_dim": 16}, batch_size=16, learning_starts=200,
+                     buffer_size=1000, skill_dim=4, seed=0)
+    pretrained.learn(400)
+    pretrained.save(snapshot)
+    out = tmp_path / "out"
+    result = demo.main(["--snapshot", str(snapshot) + ".zip", "--steps", "600", "--learning-starts", "400",
+                        "--eval-every", "300", "--eval-episodes", "1", "--skills", "0", "--out", str(out), "--task", "stand"])
+    for name in ("CIC", "DDPG"):
+        assert [h[0] for h in result[name]] == [0, 300, 600]
+        assert all(h[1] >= 0 and h[2] == pytest.approx(h[1] / sb3_cic.EXPERT_SCORES["walker_stand"]) for h in result[name])
+    assert (out / "learning_curves.png").stat().st_size > 10_000 and result["files"] == [out / "learning_curves.png"]
+    assert (out / "cic_finetuned.zip").exists() and (out / "ddpg.zip").exists()
+    printed = capsys.readouterr().out
+    assert "CIC (pre-trained)" in printed and "DDPG (from scratch)" in printed and "chosen skill: c =" in printed
+    last = result["CIC"][-1]
+    assert f"{last[1]:7.1f}" in printed and not math.isnan(last[2])
+
+
+def test_demo_refuses_a_budget_shorter_than_its_random_steps(tmp_path):
+    with pytest.raises(SystemExit):
+        demo.main(["--steps", "1000", "--learning-starts", "4000", "--out", str(tmp_path)])
