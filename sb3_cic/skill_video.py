@@ -211,6 +211,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--steps", type=int, default=250, help="env steps per skill")
     parser.add_argument("--out", default="skills.mp4", help="video file (.mp4 or .gif)")
     parser.add_argument("--plot", default=None, help="PNG of where each skill goes")
+    parser.add_argument("--no-video", action="store_true", help="only the plot: nothing rendered, no OpenGL needed")
     parser.add_argument("--env", default=None, help="env id (default: the snapshot's pre-training env)")
     parser.add_argument("--size", type=int, default=160, help="tile size in pixels")
     parser.add_argument("--seed", type=int, default=0)
@@ -218,5 +219,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     args = parser.parse_args(argv)
     if not args.snapshot.exists():
         raise SystemExit(f"no snapshot at {args.snapshot}")
-    show_skills(args.snapshot, args.n, args.steps, args.out, args.plot, args.env, args.size, args.seed, args.grid)
-    print(f"wrote {args.out}" + (f" and {args.plot}" if args.plot else ""))
+    if args.no_video and not args.plot:
+        raise SystemExit("--no-video leaves only the plot: give --plot PNG")
+    out = None if args.no_video else args.out
+    show_skills(args.snapshot, args.n, args.steps, out, args.plot, args.env, args.size, args.seed, args.grid)
+    print("wrote " + " and ".join(str(f) for f in (out, args.plot) if f))

@@ -69,6 +69,17 @@ def test_where_the_skills_go_on_the_point_mass(tmp_path):
     assert (tmp_path / "pm.png").stat().st_size > 0
 
 
+def test_plot_only_needs_no_opengl(snapshot, tmp_path):
+    plot = tmp_path / "where.png"
+    command = [sys.executable, "-m", "sb3_cic.cli", "skills", str(snapshot), "--n", "2", "--steps", "5", "--no-video",
+               "--plot", str(plot)]
+    done = subprocess.run(command, env={**os.environ, "MUJOCO_GL": "disable"}, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    assert plot.stat().st_size > 0 and f"wrote {plot}" in done.stdout
+    refused = subprocess.run(command[:-2], env={**os.environ, "MUJOCO_GL": "disable"}, capture_output=True, text=True)
+    assert refused.returncode != 0 and "give --plot PNG" in refused.stderr
+
+
 def test_a_model_without_skills_is_refused(tmp_path):
     ICM("MlpPolicy", "URLB/walker-v0", policy_kwargs={"hidden_dim": 8}, batch_size=8, buffer_size=100).save(tmp_path / "icm")
     with pytest.raises(ValueError, match="ICM model, which has no skills"):
