@@ -72,7 +72,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         ``(step, mean return, normalised score)`` list
     """
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--task", default="flip", help="walker task to fine-tune on (stand, walk, run, flip)")
+    parser.add_argument("--task", default="flip", choices=["stand", "walk", "run", "flip"], help="walker task to fine-tune on")
     parser.add_argument("--snapshot", type=Path, default=SNAPSHOT, help="pre-trained CIC walker (default: the shipped one)")
     parser.add_argument("--pretrain-steps", type=int, default=0, help="pre-train a fresh CIC for this long instead")
     parser.add_argument("--hidden-dim", type=int, default=256, help="width of the fresh pre-training's networks")
