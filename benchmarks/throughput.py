@@ -19,7 +19,7 @@ steps, and measures, timed in turns (see :func:`best_times`), the fastest of ``-
 * ``loop %`` before and after: the time of a ``learn()`` (one update every 2 env steps) outside
   ``model.train`` and the VecEnv's ``step`` (both timed inside it; env steps include the skill
   wrapper and Monitor), over the time inside them: what SB3's loop adds, action selection and
-  buffer insertion included; ``lean_acting`` is the switch that acts on it;
+  buffer insertion included; ``lean_acting`` and ``lean_forward`` are the switches that act on it;
 * ``learn steps/s`` (after) and ``2M h``: the hours a 2M-step pre-training takes at that rate;
 * ``peak MiB``: the process's peak resident memory (CPU) or ``torch.cuda.max_memory_allocated``.
 
@@ -249,12 +249,12 @@ def measure_method(
 
     replay, n_matmuls = matmul_replay(update(), device)
     variants = {"after": update(), "before": update(**dict.fromkeys(every, False)), "matmul": replay}
-    switches = ["lean_adam", *(["knn_partition"] if method in KNN_METHODS else [])]
+    switches = ["lean_adam", "lean_forward", *(["knn_partition"] if method in KNN_METHODS else [])]
     variants.update({name: update(**{name: False}) for name in switches})
     best = best_times(variants, device, repeats)
     loop_pct, steps_per_s = {}, 0.0
     for label, acting in (("before", False), ("after", True)):
-        with speed_options.override(lean_acting=acting):
+        with speed_options.override(lean_acting=acting, lean_forward=acting):
             total, train, env = timed_learn(model, learn_steps, device)
         loop_pct[label], steps_per_s = 100 * (total - train - env) / (train + env), learn_steps / total
     flops = count_flops(update())
@@ -500,7 +500,12 @@ def measure_ablations(size: str, device_name: str, repeats: int, threads: int) -
 
 
 def profile_method(method: str, size: str, device_name: str, threads: int, updates: int = 5, rows: int = 8) -> str:
-    """The top operators of ``updates`` updates of ``method`` by own time (``torch.profiler``), and the products' share."""
+    """The top operators of ``updates`` updates of ``method`` by own time (``torch.profiler``), and the products' share.
+
+    Also the time the update's matrix products take inside it (their own time in the profile) against
+    the same products replayed alone (:func:`matmul_replay`, fastest of 20): what the rest of the
+    update costs them (caches, memory).
+    """
     from torch.profiler import ProfilerActivity, profile
 
     th.set_num_threads(threads)
@@ -508,6 +513,8 @@ def profile_method(method: str, size: str, device_name: str, threads: int, updat
     model = build(method, hidden, batch, device_name)
     for _ in range(2):
         model.train(1, batch)
+    replay, _ = matmul_replay(lambda: model.train(1, batch), th.device(device_name))
+    replayed = best_times({"matmul": replay}, th.device(device_name), 20)["matmul"] * 1e3
     activities = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if device_name.startswith("cuda") else [])
     with profile(activities=activities) as prof:
         for _ in range(updates):
@@ -520,7 +527,10 @@ def profile_method(method: str, size: str, device_name: str, threads: int, updat
     calls = sum(e.count for e in events if e.key.startswith("aten::")) / updates
     top = sorted(events, key=lambda e: -getattr(e, key))[:rows]
     share = 100 * products / total
-    lines = [f"{method} ({size}): {calls:.0f} aten calls per update; matrix products {share:.1f}% of own time"]
+    lines = [
+        f"{method} ({size}): {calls:.0f} aten calls per update; matrix products {share:.1f}% of own time, "
+        f"{products / updates / 1e3:.2f} ms per update (replayed alone: {replayed:.2f} ms)"
+    ]
     for e in top:
         own = getattr(e, key)
         per_update = own / updates / 1e3
@@ -557,7 +567,7 @@ def main() -> None:
     print(f"torch {th.__version__}, device {args.device}, {args.threads} threads")
     header = (
         f"{'method':<20}{'size':>6}{'matmul ms':>10}{'after ms':>10}{'x':>7}{'before ms':>10}{'x':>7}"
-        f"{'-lean_adam':>11}{'-knn_part':>10}{'GFLOP':>7}{'GFLOP/s':>8}{'loop% b/a':>12}{'steps/s':>9}{'2M h':>7}{'MiB':>6}"
+        f"{'-lean_adam':>11}{'-lean_fwd':>10}{'-knn_part':>10}{'GFLOP':>7}{'GFLOP/s':>8}{'loop% b/a':>12}{'steps/s':>9}{'2M h':>7}{'MiB':>6}"
     )
     print(header + "\n" + "-" * len(header))
 
@@ -582,7 +592,8 @@ def main() -> None:
             gflops = r["gflop"] * 1e3 / ms["after"]
             print(
                 f"{r['name']:<20}{r['size']:>6}{ms['matmul']:>10.2f}{cell(ms, 'after', 10, True)}"
-                f"{cell(ms, 'before', 10, True)}{cell(ms, 'lean_adam', 11)}{cell(ms, 'knn_partition', 10)}"
+                f"{cell(ms, 'before', 10, True)}{cell(ms, 'lean_adam', 11)}{cell(ms, 'lean_forward', 10)}"
+                f"{cell(ms, 'knn_partition', 10)}"
                 f"{r['gflop']:>7.2f}{gflops:>8.0f}{r['loop_before']:>6.1f}/{r['loop_after']:>4.1f}%"
                 f"{r['steps_per_s']:>9.1f}{2e6 / r['steps_per_s'] / 3600:>7.1f}{r['peak_mib']:>6.0f}",
                 flush=True,

@@ -24,7 +24,7 @@ from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 from stable_baselines3.td3.policies import TD3Policy
 from torch import nn
 
-from sb3_cic.speed import FusedAdam, speed_options
+from sb3_cic.speed import FusedAdam, LeanSequential, speed_options
 
 
 #: Adam's fused implementation, also when ``torch.optim.Adam`` is given: the same update as the per-tensor
@@ -87,8 +87,8 @@ class URLBActor(BasePolicy):
         super().__init__(observation_space, action_space, squash_output=True, normalize_images=normalize_images)
         self.hidden_dim = check_positive_int("hidden_dim", hidden_dim)
         obs_dim, act_dim = observation_space.shape[0], get_action_dim(action_space)
-        self.trunk = nn.Sequential(nn.Linear(obs_dim, hidden_dim), nn.LayerNorm(hidden_dim), nn.Tanh())
-        self.policy = nn.Sequential(
+        self.trunk = LeanSequential(nn.Linear(obs_dim, hidden_dim), nn.LayerNorm(hidden_dim), nn.Tanh())
+        self.policy = LeanSequential(
             nn.Linear(hidden_dim, hidden_dim), nn.ReLU(inplace=True), nn.Linear(hidden_dim, act_dim), nn.Tanh()
         )
         self.apply(orthogonal_init)
@@ -130,10 +130,10 @@ class URLBCritic(BaseModel):
         self.output_dim = output_dim
         self.n_critics = check_positive_int("n_critics", n_critics)
         in_dim = observation_space.shape[0] + get_action_dim(action_space)
-        self.trunk = nn.Sequential(nn.Linear(in_dim, hidden_dim), nn.LayerNorm(hidden_dim), nn.Tanh())
-        self.q_networks: list[nn.Sequential] = []
+        self.trunk = LeanSequential(nn.Linear(in_dim, hidden_dim), nn.LayerNorm(hidden_dim), nn.Tanh())
+        self.q_networks: list[LeanSequential] = []
         for i in range(n_critics):
-            head = nn.Sequential(nn.Linear(hidden_dim, hidden_dim), nn.ReLU(inplace=True), nn.Linear(hidden_dim, output_dim))
+            head = LeanSequential(nn.Linear(hidden_dim, hidden_dim), nn.ReLU(inplace=True), nn.Linear(hidden_dim, output_dim))
             self.add_module(f"q{i + 1}_net", head)
             self.q_networks.append(head)
         self.apply(orthogonal_init)

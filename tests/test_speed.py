@@ -3,7 +3,8 @@
 The changes (timed by ``benchmarks/throughput.py``, the older ones by its ``--ablations``): fused Adam,
 no critic weight gradients in the actor step, one foreach lerp for the target critic, the fused CIC
 reward (``test_cic.py::test_fused_update_equals_reward_then_update``), and the switches of
-``sb3_cic.speed.speed_options``: the lean Adam step, the kNN selection by partition, lean acting.
+``sb3_cic.speed.speed_options``: the lean Adam step, the kNN selection by partition, lean acting, the
+lean forward pass of :class:`~sb3_cic.speed.LeanSequential`.
 """
 
 import copy
@@ -15,7 +16,7 @@ from stable_baselines3.common.utils import polyak_update
 
 from sb3_cic import CIC, URLBDDPG
 from sb3_cic.rewards.particle import knn_distances
-from sb3_cic.speed import FusedAdam, speed_options
+from sb3_cic.speed import FusedAdam, LeanSequential, speed_options
 
 
 def pair(tiny):
@@ -157,6 +158,40 @@ def test_knn_partition_leaves_the_cic_update_unchanged(tiny):
     with speed_options.override(knn_partition=False):
         result_plain = run_updates(plain, data)
     assert_identical(result_fast, result_plain)
+
+
+def test_lean_forward_leaves_the_cic_update_unchanged(tiny):
+    lean, plain, data = pair(tiny)
+    assert isinstance(lean.actor.trunk, LeanSequential) and isinstance(lean.reward_module.state_net, LeanSequential)
+    result_lean = run_updates(lean, data)
+    with speed_options.override(lean_forward=False):
+        result_plain = run_updates(plain, data)
+    assert_identical(result_lean, result_plain)
+
+
+def test_lean_sequential_is_nn_sequential_bit_for_bit():
+    """Outputs and gradients of every layer kind it shortcuts, an unknown layer, hooks honoured."""
+    th.manual_seed(0)
+    layers = [th.nn.Linear(5, 8), th.nn.LayerNorm(8), th.nn.Tanh(), th.nn.Linear(8, 8), th.nn.ReLU(inplace=True)]
+    layers += [th.nn.Linear(8, 8), th.nn.ReLU(), th.nn.Sigmoid(), th.nn.Linear(8, 3)]
+    lean, plain = LeanSequential(*layers), th.nn.Sequential(*copy.deepcopy(layers))
+    assert lean.state_dict().keys() == plain.state_dict().keys()
+    x = th.randn(16, 5)
+    out_lean, out_plain = lean(x), plain(x)
+    assert th.equal(out_lean, out_plain)
+    out_lean.square().sum().backward()
+    out_plain.square().sum().backward()
+    assert all(th.equal(p.grad, q.grad) for p, q in zip(lean.parameters(), plain.parameters()))
+    seen = []
+    handle = lean[1].register_forward_hook(lambda module, inputs, output: seen.append(output.shape))
+    assert th.equal(lean(x), out_plain) and seen == [(16, 8)]  # a layer with a hook is called as a module
+    handle.remove()
+    handle = th.nn.modules.module.register_module_forward_hook(lambda module, inputs, output: seen.append(type(module)))
+    try:
+        lean(x)
+    finally:
+        handle.remove()
+    assert seen.count(th.nn.Linear) == 4  # global hooks: every layer called as a module
 
 
 @pytest.mark.parametrize("cls, env_id", [(URLBDDPG, "URLB/walker-stand-v0"), (CIC, "URLB/walker-v0")])

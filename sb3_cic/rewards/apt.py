@@ -8,6 +8,7 @@ from torch import nn
 
 from sb3_cic.policies import orthogonal_init
 from sb3_cic.rewards.base import RewardModule, mlp
+from sb3_cic.speed import LeanSequential
 from sb3_cic.rewards.particle import ParticleEntropy
 
 
@@ -44,9 +45,9 @@ class APTReward(RewardModule):
         knn_rms: bool = False,
     ) -> None:
         super().__init__(state_dim, action_dim, 0, lr)
-        self.trunk = nn.Sequential(nn.Linear(state_dim, rep_dim), nn.LayerNorm(rep_dim), nn.Tanh())
+        self.trunk = LeanSequential(nn.Linear(state_dim, rep_dim), nn.LayerNorm(rep_dim), nn.Tanh())
         self.forward_net = mlp(rep_dim + action_dim, hidden_dim, rep_dim, n_hidden=1)
-        self.inverse_net = nn.Sequential(*mlp(2 * rep_dim, hidden_dim, action_dim, n_hidden=1), nn.Tanh())
+        self.inverse_net = LeanSequential(*mlp(2 * rep_dim, hidden_dim, action_dim, n_hidden=1), nn.Tanh())
         self.apply(orthogonal_init)
         self.particle = ParticleEntropy(k=knn_k, avg=knn_avg, rms=knn_rms, clip=knn_clip)
         self.make_optimizer()

@@ -8,7 +8,7 @@ import torch as th
 from stable_baselines3.common.type_aliases import ReplayBufferSamples
 from torch import nn
 
-from sb3_cic.speed import FusedAdam
+from sb3_cic.speed import FusedAdam, LeanSequential
 
 
 class RewardModule(nn.Module):
@@ -68,7 +68,7 @@ class RewardModule(nn.Module):
         self.optimizer.step()
 
 
-def mlp(in_dim: int, hidden_dim: int, out_dim: int, n_hidden: int = 2) -> nn.Sequential:
+def mlp(in_dim: int, hidden_dim: int, out_dim: int, n_hidden: int = 2) -> LeanSequential:
     """ReLU MLP with ``n_hidden`` hidden layers of width ``hidden_dim``."""
     layers: list[nn.Module] = []
     dim = in_dim
@@ -76,4 +76,4 @@ def mlp(in_dim: int, hidden_dim: int, out_dim: int, n_hidden: int = 2) -> nn.Seq
         layers += [nn.Linear(dim, hidden_dim), nn.ReLU(inplace=True)]
         dim = hidden_dim
     layers.append(nn.Linear(dim, out_dim))
-    return nn.Sequential(*layers)
+    return LeanSequential(*layers)

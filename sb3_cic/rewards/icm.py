@@ -8,6 +8,7 @@ from torch import nn
 
 from sb3_cic.policies import orthogonal_init
 from sb3_cic.rewards.base import RewardModule, mlp
+from sb3_cic.speed import LeanSequential
 
 
 class ICMReward(RewardModule):
@@ -28,7 +29,7 @@ class ICMReward(RewardModule):
         super().__init__(state_dim, action_dim, 0, lr)
         self.scale = scale
         self.forward_net = mlp(state_dim + action_dim, hidden_dim, state_dim, n_hidden=1)
-        self.inverse_net = nn.Sequential(*mlp(2 * state_dim, hidden_dim, action_dim, n_hidden=1), nn.Tanh())
+        self.inverse_net = LeanSequential(*mlp(2 * state_dim, hidden_dim, action_dim, n_hidden=1), nn.Tanh())
         self.apply(orthogonal_init)
         self.make_optimizer()
 
