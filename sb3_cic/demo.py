@@ -23,12 +23,10 @@ import time
 from pathlib import Path
 from typing import Any
 
-import gymnasium as gym
-from stable_baselines3.common.monitor import Monitor
-
 from sb3_cic import CIC, URLBDDPG, URLBEvalCallback
 from sb3_cic.constants import EXPERT_SCORES
 from sb3_cic.ddpg import read_saved_data
+from sb3_cic.protocol import evaluation_callback
 
 #: the shipped snapshot: CIC pre-trained reward-free on URLB/walker-v0, hidden 256, batch 256, 100k steps
 SNAPSHOT = Path(__file__).parent / "pretrained" / "cic_walker_h256_100k.zip"
@@ -102,9 +100,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
           f"hidden {data['policy_kwargs'].get('hidden_dim')}, batch {data['batch_size']}, {data['num_timesteps']} steps")
 
     def evaluation() -> URLBEvalCallback:
-        env = Monitor(gym.make(env_id))
-        env.reset(seed=10_000 + args.seed)
-        return URLBEvalCallback(env, task=task, n_eval_episodes=args.eval_episodes, eval_freq=args.eval_every, verbose=0)
+        return evaluation_callback(env_id, task, args.seed, args.eval_episodes, args.eval_every)
 
     print(f"[2/4] CIC: fine-tuning on {env_id} for {args.steps} steps (skill grid sweep over the first "
           f"{args.learning_starts}) ...", flush=True)

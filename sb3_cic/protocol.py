@@ -330,6 +330,17 @@ def _train(
     return checkpointer.elapsed()
 
 
+
+def evaluation_callback(env_id: str, task: str | None, seed: int, n_eval_episodes: int, eval_freq: int) -> URLBEvalCallback:
+    """The evaluation of a fine-tuning run: a Monitor-wrapped ``env_id`` seeded ``10_000 + seed``, silent.
+
+    :param task: URLB task name for the normalised score (None: none)
+    """
+    eval_env = Monitor(gym.make(env_id))
+    eval_env.reset(seed=10_000 + seed)
+    return URLBEvalCallback(eval_env, task=task, n_eval_episodes=n_eval_episodes, eval_freq=eval_freq, verbose=0)
+
+
 def finetune(
     study: str | Path,
     method: str,
@@ -404,23 +415,15 @@ def finetune(
         if isinstance(callback, SkillGridSweepCallback):
             callback.sweep_steps = model.learning_starts
 
-    eval_env = Monitor(gym.make(env_id))
-    eval_env.reset(seed=10_000 + seed)
     expert = EXPERT_SCORES.get(name)
-    evaluation = URLBEvalCallback(
-        eval_env,
-        task=name if expert else None,
-        n_eval_episodes=settings.eval_episodes,
-        eval_freq=settings.eval_freq,
-        verbose=0,
-    )
+    evaluation = evaluation_callback(env_id, name if expert else None, seed, settings.eval_episodes, settings.eval_freq)
     wall = _train(model, folder, checkpoint, steps, [*callbacks, evaluation], settings.finetune_checkpoint_every, settings,
                   f"finetune_{label}_{name}_seed{seed}")
     if not evaluation.history or evaluation.history[-1][0] != model.num_timesteps:
         start = time.perf_counter()
         evaluation._evaluate()  # the final evaluation
         wall += time.perf_counter() - start
-    eval_env.close()
+    evaluation.eval_env.close()
 
     with open(folder.path / "eval.csv", "w", newline="") as file:
         writer = csv.writer(file)

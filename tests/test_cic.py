@@ -57,7 +57,7 @@ def test_contrastive_loss_code_variant_hand_computed():
     assert loss.item() == pytest.approx(expected, rel=1e-6)
     paper, paper_accuracy = CICReward(3, 1, skill_dim=2, hidden_dim=8).contrastive_loss(q, k)
     assert loss.item() < paper.item() and accuracy == paper_accuracy
-    with pytest.raises(ValueError, match="'paper' or 'code'"):
+    with pytest.raises(ValueError, match="one of \\('paper', 'code'\\)"):
         CICReward(3, 1, skill_dim=2, hidden_dim=8, variant="Code")
 
 
@@ -70,6 +70,8 @@ def test_cic_code_variant_settings():
                 policy_kwargs={"hidden_dim": 8}, knn_k=5)
     assert paper.reward_module.particle.k == 5 and paper.reward_module.particle.divide_by == "mean"
     assert paper.cic_variant == "paper" and paper.reward_module.variant == "paper"
+    with pytest.raises(ValueError, match="got 'Code'"):
+        CIC("MlpPolicy", "URLB/point_mass-v0", cic_variant="Code")
 
 
 def test_contrastive_loss_lower_for_aligned_pairs():

@@ -9,7 +9,7 @@ from stable_baselines3.common.type_aliases import GymEnv
 
 from sb3_cic.callbacks import FixedSkillCallback, SkillGridSweepCallback
 from sb3_cic.ddpg import URLBDDPG
-from sb3_cic.rewards.cic import CICReward
+from sb3_cic.rewards.cic import CICReward, check_variant
 from sb3_cic.skills import UniformSkillPrior
 
 
@@ -63,6 +63,7 @@ class CIC(URLBDDPG):
     ) -> None:
         if finetune_skill_choice not in ("sweep", "fixed"):
             raise ValueError(f"finetune_skill_choice must be 'sweep' or 'fixed', got {finetune_skill_choice!r}")
+        check_variant(cic_variant)  # before the default k is chosen from it
         self.cic_variant = cic_variant
         self.cic_hidden_dim = cic_hidden_dim
         self.cic_embed_dim = cic_embed_dim

@@ -12,6 +12,16 @@ from sb3_cic.rewards.base import RewardModule, mlp
 from sb3_cic.rewards.particle import ParticleEntropy
 
 
+#: the CIC loss and reward variants (see :class:`CICReward`)
+CIC_VARIANTS = ("paper", "code")
+
+
+def check_variant(variant: str) -> None:
+    """``ValueError`` unless ``variant`` is one of :data:`CIC_VARIANTS`."""
+    if variant not in CIC_VARIANTS:
+        raise ValueError(f"the CIC variant must be one of {CIC_VARIANTS}, got {variant!r}")
+
+
 class CICReward(RewardModule):
     """Contrastive Intrinsic Control (Laskin et al., 2022).
 
@@ -59,8 +69,7 @@ class CICReward(RewardModule):
         knn_rms: bool = True,
         variant: str = "paper",
     ) -> None:
-        if variant not in ("paper", "code"):
-            raise ValueError(f"the CIC variant must be 'paper' or 'code', got {variant!r}")
+        check_variant(variant)
         super().__init__(state_dim, action_dim, skill_dim, lr)
         self.temperature = temperature
         self.variant = variant
