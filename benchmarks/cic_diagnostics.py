@@ -30,6 +30,7 @@ import argparse
 import math
 import os
 import sys
+from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "disable")
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -170,7 +171,7 @@ def main() -> None:
     th.set_num_threads(1)
 
     model = CIC.load(args.snapshot, device="cpu")
-    print(f"# CIC diagnostics: {args.snapshot}\n")
+    print(f"# CIC diagnostics: {Path(args.snapshot).name}\n")
     print(f"## Discriminator on batches of {args.batch} distinct skills ({args.disc_batches} batches, mean +- std)\n")
     print("Snapshot:\n")
     print("\n".join(distinct_skill_scores(model, args.domain_id, args.batch, args.disc_batches, args.seed)) + "\n")

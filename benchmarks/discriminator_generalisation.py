@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import os
+from pathlib import Path
 import sys
 import time
 
@@ -87,7 +88,7 @@ def main() -> None:
     sets["fresh"] = [one_per_skill(segments[i * args.batch : (i + 1) * args.batch], model.n_steps, rng)
                      for i in range(args.score_batches)]
     b_held = min(args.batch, len(held))
-    print(f"# Discriminator generalisation: {args.checkpoint}\n")
+    print(f"# Discriminator generalisation: {Path(args.checkpoint).name}\n")
     print(f"Checkpoint at step {model.num_timesteps}: {len(skill_of)} stored transitions of {n_skills} skills; "
           f"{len(held)} skills held out ({len(held_idx)} transitions). Batches of {args.batch} distinct skills "
           f"(held-out: {b_held}); chance loss log B = {np.log(args.batch):.3f} (held-out {np.log(b_held):.3f}), "
