@@ -10,7 +10,9 @@ update with each one switched off in turn. All are on by default; switch one off
     with speed_options.override(knn_partition=False):
         model.train(1, 256)                      # only inside the block
 
-The update's other speed changes are older and are switched the same way as before: the model's
+:class:`LeanSequential` is the ``nn.Sequential`` of the policy's and the reward modules' networks that the
+``lean_forward`` switch acts on. The update's other speed changes are older and are switched the same way
+as before: the model's
 ``freeze_critic_in_actor_step`` and the reward module's fused ``update_and_reward``.
 """
 
