@@ -259,3 +259,15 @@ def test_cic_learns_on_the_point_mass():
     random_cells = _cells_visited(np.array(random_positions))
     print(f"contrastive loss {loss:.3f} (log B {math.log(batch):.3f}), cells visited CIC {cic_cells} random {random_cells}")
     assert cic_cells > 2 * random_cells
+
+
+def test_cic_networks_start_orthogonal_with_zero_bias():
+    """As the CIC code (``utils.weight_init``) and URLB's other networks."""
+    module = CICReward(24, 6, skill_dim=16, hidden_dim=32)
+    linears = [m for m in module.modules() if isinstance(m, th.nn.Linear)]
+    assert len(linears) == 9
+    for layer in linears:
+        w = layer.weight.detach()
+        gram = w @ w.T if w.shape[0] <= w.shape[1] else w.T @ w
+        th.testing.assert_close(gram, th.eye(min(w.shape)), atol=1e-5, rtol=0)
+        assert layer.bias.abs().max() == 0

@@ -8,6 +8,7 @@ import torch as th
 import torch.nn.functional as F
 from stable_baselines3.common.type_aliases import ReplayBufferSamples
 
+from sb3_cic.policies import orthogonal_init
 from sb3_cic.rewards.base import RewardModule, mlp
 from sb3_cic.rewards.particle import ParticleEntropy
 
@@ -35,6 +36,7 @@ class CICReward(RewardModule):
       ``log(max(sum_j exp(l_ij) - exp(1/T), 1e-6) + 1e-6) - l_ii``, averaged over the batch.
     * Reward: particle entropy (k nearest neighbours in the batch) of ``g1(s')``, divided by the running
       mean of the distances (``variant="code"``: by their running variance, as the CIC code does).
+    * Initialisation: orthogonal weights and zero biases, as the CIC code's networks.
 
     :meth:`update_and_reward` computes ``g1(s)`` and ``g1(s')`` once for both the loss and the reward
     (the reward uses the networks as they were when the batch was sampled).
@@ -77,6 +79,7 @@ class CICReward(RewardModule):
         self.state_net = mlp(state_dim, hidden_dim, embed_dim)
         self.pred_net = mlp(2 * embed_dim, hidden_dim, embed_dim)
         self.skill_net = mlp(skill_dim, hidden_dim, embed_dim)
+        self.apply(orthogonal_init)  # orthogonal weights, zero biases, as the CIC code
         divide_by = "mean" if variant == "paper" else "var"
         self.particle = ParticleEntropy(k=knn_k, avg=knn_avg, rms=knn_rms, clip=knn_clip, divide_by=divide_by)
         self.make_optimizer()
