@@ -271,3 +271,18 @@ def test_cic_networks_start_orthogonal_with_zero_bias():
         gram = w @ w.T if w.shape[0] <= w.shape[1] else w.T @ w
         th.testing.assert_close(gram, th.eye(min(w.shape)), atol=1e-5, rtol=0)
         assert layer.bias.abs().max() == 0
+
+
+def test_particle_reward_of_identical_points_is_zero_not_nan():
+    """A first batch of one repeated point: running mean 0; the floored divisor gives reward 0."""
+    particle = ParticleEntropy(k=4)
+    reward = particle(th.ones(8, 3))
+    assert th.equal(reward, th.zeros(8, 1))
+
+
+def test_cic_learns_from_the_first_step_without_nan(tiny):
+    """learning_starts=0: the first updates sample batches of one or two repeated transitions."""
+    model = CIC("MlpPolicy", "URLB/walker-v0", seed=0, **{**tiny, "learning_starts": 0})
+    model.learn(20)
+    params = [*model.policy.parameters(), *model.reward_module.parameters()]
+    assert model._n_updates > 0 and all(th.isfinite(p).all() for p in params)

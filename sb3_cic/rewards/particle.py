@@ -60,6 +60,12 @@ def knn_distances(source: th.Tensor, target: th.Tensor, k: int) -> th.Tensor:
     return nearest.clamp_(min=0.0).sqrt_()
 
 
+#: floor of the running statistic the distances are divided by: a first batch of identical points (training
+#: that starts with fewer stored transitions than neighbours) has a running mean of 0, and 0 / 0 would make the
+#: reward, then the critic, NaN; with the floor its reward is 0
+MIN_DIVISOR = 1e-8
+
+
 class ParticleEntropy(nn.Module):
     """APT's particle entropy reward: ``log(c + x)`` of the (normalised, clipped) kNN distances.
 
@@ -67,6 +73,7 @@ class ParticleEntropy(nn.Module):
     before the average, as URLB's ``PBE`` and the CIC code do (a point's zero distance to itself counts 0);
     ``m`` is the running mean of the distances when ``rms=True`` (1 otherwise), which all k distances of the
     batch update. With ``avg=False`` the k-th distance alone is kept, and it alone updates the running statistics.
+    The statistic is floored at :data:`MIN_DIVISOR` (URLB's would give 0 / 0 on a batch of identical points).
 
     :param k: number of neighbours (URLB and the CIC paper: 12)
     :param avg: average over the k neighbours (else keep the k-th)
@@ -94,7 +101,7 @@ class ParticleEntropy(nn.Module):
             x = x[:, -1:]
         if self.use_rms:
             self.rms.update(x.reshape(-1, 1))
-            x = x / (self.rms.mean if self.divide_by == "mean" else self.rms.var)
+            x = x / (self.rms.mean if self.divide_by == "mean" else self.rms.var).clamp_min(MIN_DIVISOR)
         if self.clip >= 0:
             x = th.clamp_min(x - self.clip, 0.0)
         return th.log(self.c + x.mean(dim=1, keepdim=True))
