@@ -4,7 +4,7 @@ Reads ``<study>/finetune/<label>/<task>/seed_<k>/result.json`` and ``eval.csv`` 
 :mod:`sb3_cic.protocol`) and writes into the study folder:
 
 * ``report.md``: per-task mean and standard error (over seeds) of the final return and normalised
-  score; per method the IQM, median, mean and optimality gap of normalised scores over the
+  score, and of the area under the learning curve (:func:`curve_area`); per method the IQM, median, mean and optimality gap of normalised scores over the
   runs x tasks matrix with stratified-bootstrap 95% intervals (rliable, Agarwal et al., 2021);
   wall times;
 * ``report.json``: the same numbers;
@@ -55,8 +55,20 @@ def _mean_se(values: Sequence[float]) -> tuple[float, float]:
     return float(values.mean()), se
 
 
+def curve_area(curve: tuple[np.ndarray, np.ndarray]) -> float:
+    """Area under an evaluation curve ``(steps, returns)`` over its span of steps (trapezoid rule).
+
+    The mean return over fine-tuning: a run that learns sooner has a larger area at the same final return
+    (pre-training's head start). NaN with fewer than two evaluations.
+    """
+    steps, returns = curve
+    if len(steps) < 2 or steps[-1] == steps[0]:
+        return float("nan")
+    return float(np.trapezoid(returns, steps) / (steps[-1] - steps[0]))
+
+
 def per_task(results: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Per (method label, task): seeds, mean and s.e. of the final return and of the normalised score."""
+    """Per (method label, task): seeds, mean and s.e. of the final return, the normalised score and the curve's area."""
     groups: dict[tuple[str, str], list[dict[str, Any]]] = defaultdict(list)
     for result in results:
         groups[(result["label"], result["task"])].append(result)
@@ -66,6 +78,7 @@ def per_task(results: list[dict[str, Any]]) -> list[dict[str, Any]]:
         ret_mean, ret_se = _mean_se([r["final_return"] for r in runs])
         scores = [r["final_normalized_score"] for r in runs]
         score_mean, score_se = _mean_se(scores) if all(s is not None for s in scores) else (float("nan"), float("nan"))
+        auc_mean, auc_se = _mean_se([curve_area(r["curve"]) for r in runs])
         rows.append(
             {
                 "method": label,
@@ -76,6 +89,8 @@ def per_task(results: list[dict[str, Any]]) -> list[dict[str, Any]]:
                 "return_se": ret_se,
                 "score_mean": score_mean,
                 "score_se": score_se,
+                "auc_mean": auc_mean,
+                "auc_se": auc_se,
                 "finetune_wall_s": float(np.mean([r["wall_time_s"]["finetune"] for r in runs])),
                 "pretrain_wall_s": runs[0]["wall_time_s"].get("pretrain"),
             }
@@ -266,6 +281,18 @@ def write_report(study: str | Path, reps: int = 2000, seed: int = 0) -> dict[str
             f"| {row['method']} | {row['task']} | {row['n']} | {_pm(row['return_mean'], row['return_se'], 1)} "
             f"| {_pm(row['score_mean'], row['score_se'], 3)} |"
         )
+    lines += [
+        "",
+        "## Area under the learning curve",
+        "",
+        "Area under each run's evaluation curve divided by its span of steps (trapezoid rule): the mean "
+        "return over fine-tuning, which credits learning sooner. Mean ± standard error over seeds.",
+        "",
+        "| method | task | seeds | mean return over fine-tuning |",
+        "|---|---|---:|---:|",
+    ]
+    for row in rows:
+        lines.append(f"| {row['method']} | {row['task']} | {row['n']} | {_pm(row['auc_mean'], row['auc_se'], 1)} |")
     lines += ["", f"## Aggregates (normalised scores, rliable, stratified bootstrap 95% CI, {reps} reps)", ""]
     if shared and shared != all_tasks:
         lines += [f"Over the tasks every method ran: {', '.join(shared)}.", ""]

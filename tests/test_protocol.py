@@ -98,6 +98,15 @@ def test_report_numbers(study: Path):
         assert row["score_mean"] == pytest.approx(scores.mean())
         assert row["score_se"] == pytest.approx(scores.std(ddof=1) / np.sqrt(2))
         assert f"| {label} | {task} | 2 | {returns.mean():.1f} ± {returns.std(ddof=1) / np.sqrt(2):.1f} |" in markdown
+        areas = []  # the curve's area over its steps, by hand: evaluations at 0, 500, 1000 (trapezoids)
+        for r in results:
+            if r["label"] == label and r["task"] == task:
+                run_dir = study / "finetune" / label / task / f"seed_{r['seed']}"
+                curve = np.genfromtxt(run_dir / "eval.csv", delimiter=",", names=True)["mean_return"]
+                areas.append((0.5 * (curve[0] + curve[1]) * 500 + 0.5 * (curve[1] + curve[2]) * 500) / 1000)
+        assert row["auc_mean"] == pytest.approx(np.mean(areas))
+        assert row["auc_se"] == pytest.approx(np.std(areas, ddof=1) / np.sqrt(2))
+        assert f"| {label} | {task} | 2 | {np.mean(areas):.1f} ± " in markdown
 
     assert "Over the tasks every method ran: walker_stand." in markdown  # DDPG ran stand only
     for label in ("cic", "ddpg"):
