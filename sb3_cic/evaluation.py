@@ -4,9 +4,9 @@ Reads ``<study>/finetune/<label>/<task>/seed_<k>/result.json`` and ``eval.csv`` 
 :mod:`sb3_cic.protocol`) and writes into the study folder:
 
 * ``report.md``: per-task mean and standard error (over seeds) of the final return and normalised
-  score, and of the area under the learning curve (:func:`curve_area`); per method the IQM, median, mean and optimality gap of normalised scores over the
-  runs x tasks matrix with stratified-bootstrap 95% intervals (rliable, Agarwal et al., 2021);
-  wall times;
+  score, and of the area under the learning curve (:func:`curve_area`); per method the IQM, median,
+  mean and optimality gap of normalised scores over the runs x tasks matrix with stratified-bootstrap
+  95% intervals (rliable, Agarwal et al., 2021); wall times;
 * ``report.json``: the same numbers;
 * ``aggregates.png`` (rliable's ``plot_interval_estimates``) and ``learning_curves.png``
   (evaluation return against fine-tuning steps, mean +- s.e. over seeds, one panel per task).

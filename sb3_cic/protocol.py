@@ -330,7 +330,6 @@ def _train(
     return checkpointer.elapsed()
 
 
-
 def evaluation_callback(env_id: str, task: str | None, seed: int, n_eval_episodes: int, eval_freq: int) -> URLBEvalCallback:
     """The evaluation of a fine-tuning run: a Monitor-wrapped ``env_id`` seeded ``10_000 + seed``, silent.
 

@@ -8,8 +8,8 @@ from torch import nn
 
 from sb3_cic.policies import orthogonal_init
 from sb3_cic.rewards.base import RewardModule, mlp
-from sb3_cic.speed import LeanSequential
 from sb3_cic.rewards.particle import ParticleEntropy
+from sb3_cic.speed import LeanSequential
 
 
 class APTReward(RewardModule):
