@@ -34,8 +34,8 @@ import torch as th  # noqa: E402
 from stable_baselines3.common.type_aliases import ReplayBufferSamples  # noqa: E402
 
 from sb3_cic import CIC  # noqa: E402
+from discriminator_generalisation import score_sets  # noqa: E402  (this folder is on sys.path when run)
 from sb3_cic.diagnostics import (  # noqa: E402
-    discriminator_scores,
     one_per_skill,
     replay_one_per_skill,
     skill_rollout,
@@ -53,12 +53,8 @@ def fresh_module(model: CIC) -> CICReward:
 
 
 def scores(module: CICReward, sets: dict[str, list[tuple[np.ndarray, np.ndarray]]]) -> str:
-    """``loss / accuracy`` (mean over the batches) of each named set, as table cells."""
-    cells = []
-    for batches in sets.values():
-        s = [discriminator_scores(module, obs, next_obs) for obs, next_obs in batches]
-        cells.append(f"{np.mean([x['loss'] for x in s]):.3f} / {np.mean([x['accuracy'] for x in s]):.3f}")
-    return " | ".join(cells)
+    """``loss / accuracy`` (mean over the batches, :func:`discriminator_generalisation.score_sets`) as table cells."""
+    return " | ".join(f"{loss:.3f} / {accuracy:.3f}" for loss, accuracy in score_sets(module, sets).values())
 
 
 def one_policy(args: argparse.Namespace, rng: np.random.Generator) -> None:
