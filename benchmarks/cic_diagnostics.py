@@ -35,7 +35,6 @@ from pathlib import Path
 os.environ.setdefault("MUJOCO_GL", "disable")
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-import gymnasium as gym  # noqa: E402
 import numpy as np  # noqa: E402
 import torch as th  # noqa: E402
 
@@ -66,28 +65,13 @@ def pretraining_curves(logdir: str, every: int) -> list[str]:
     return lines
 
 
-def rollout(model: CIC | None, env_id: str, steps: int, seed: int, skill_dim: int, noise: float = 0.2) -> dict[str, np.ndarray]:
-    """States, skills and actions of ``steps`` env steps (``model=None``: uniformly random actions)."""
-    env = gym.make(env_id)
-    rng = np.random.default_rng(seed)
-    state, _ = env.reset(seed=seed)
-    states, skills = [], []
-    skill = rng.uniform(size=skill_dim).astype(np.float32)
-    for t in range(steps):
-        if t % 50 == 0:
-            skill = rng.uniform(size=skill_dim).astype(np.float32)
-        states.append(state)
-        skills.append(skill)
-        if model is None:
-            action = rng.uniform(-1, 1, size=env.action_space.shape)
-        else:
-            mu, _ = model.predict(np.concatenate([state, skill])[None], deterministic=True)
-            action = np.clip(mu[0] + noise * rng.standard_normal(mu.shape[1]), -1, 1)
-        state, _, terminated, truncated, _ = env.step(action.astype(np.float32))
-        if terminated or truncated:
-            state, _ = env.reset()
-    env.close()
-    return {"states": np.array(states, dtype=np.float32), "skills": np.array(skills, dtype=np.float32)}
+def rollout(model: CIC | None, env_id: str, steps: int, seed: int, skill_dim: int, n_step: int = 3) -> dict[str, np.ndarray]:
+    """The states of ``steps`` env steps of fresh rollouts, a new skill every 50 steps (``model=None``: uniformly random
+    actions), and the states ``n_step`` steps after a state of the same skill (the states CIC's reward embeds)."""
+    segments = skill_rollout(model, env_id, -(-steps // 50), skill_dim, seed=seed)
+    states = np.concatenate([segment[:-1, :-skill_dim] for segment in segments])[:steps]
+    next_states = np.concatenate([segment[n_step:, :-skill_dim] for segment in segments])
+    return {"states": states, "next_states": next_states}
 
 
 def particle_entropy(states: np.ndarray, scale: np.ndarray, n: int = 2000, k: int = 12) -> float:
@@ -95,16 +79,14 @@ def particle_entropy(states: np.ndarray, scale: np.ndarray, n: int = 2000, k: in
     return float(th.log1p(knn_distances(x, x, k + 1)[:, 1:].mean(dim=1)).mean())
 
 
-def intrinsic_reward(model: CIC, data: dict[str, np.ndarray], batch: int, n_step: int = 3) -> tuple[float, float]:
-    """Mean and std of the intrinsic reward on random batches of (s, z, s_{t+n}) within a skill."""
-    states = data["states"]
-    idx = np.array([t for t in range(len(states) - n_step) if (t % 50) + n_step < 50 and (t % 1000) + n_step < 1000])
+def intrinsic_reward(model: CIC, next_states: np.ndarray, batch: int) -> tuple[float, float]:
+    """Mean and std of the intrinsic reward on 20 random batches of ``next_states``."""
     rng = np.random.default_rng(0)
     rewards = []
     for _ in range(20):
-        b = rng.choice(idx, size=batch, replace=False)
+        b = rng.choice(len(next_states), size=batch, replace=False)
         with th.no_grad():
-            embedding = model.reward_module.state_net(th.as_tensor(states[b + n_step], device=model.device))
+            embedding = model.reward_module.state_net(th.as_tensor(next_states[b], device=model.device))
             rewards.append(model.reward_module.particle(embedding).cpu().numpy())
     r = np.concatenate(rewards)
     return float(r.mean()), float(r.std())
@@ -201,7 +183,7 @@ def main() -> None:
     print(f"| rollout | intrinsic reward mean +- std | particle entropy | state[{args.height_index}] min / max |")
     print("|---|---:|---:|---:|")
     for name, data in runs.items():
-        mean, std = intrinsic_reward(model, data, args.batch)
+        mean, std = intrinsic_reward(model, data["next_states"], args.batch)
         height = data["states"][:, args.height_index]
         print(f"| {name} | {mean:.3f} +- {std:.3f} | {particle_entropy(data['states'], scale):.3f} | "
               f"{height.min():.2f} / {height.max():.2f} |")
