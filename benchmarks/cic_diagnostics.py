@@ -5,7 +5,8 @@ Given a pre-training snapshot (and optionally the tensorboard run of its pre-tra
 * **pre-training curves**: contrastive loss, discriminator top-1 accuracy, intrinsic reward mean
   and std, read from tensorboard every ``--every`` steps;
 * **discriminator on batches of distinct skills** (:mod:`sb3_cic.diagnostics`): each batch holds one
-  transition ``(s_t, z, s_{t+3})`` per distinct skill, so chance is exactly ``log B`` and ``1 / B``;
+  transition ``(s_t, z, s_{t+3})`` per distinct skill, so chance is exactly ``log B`` and ``1 / B`` (and 0.5
+  for the rank: the share of the other skills' keys scored above the right one);
   from fresh rollouts of the policy (exploration noise 0.2, a skill every 50 steps, as in pre-training)
   and, given ``--checkpoint`` (a study run's ``checkpoint.zip``, which holds the replay buffer), from
   the replayed transitions the discriminator was trained on, both scored by the checkpoint's
@@ -107,11 +108,12 @@ def distinct_skill_scores(model: CIC, domain_id: str, batch: int, batches: int, 
             sample = replay_one_per_skill(buffer_model.replay_buffer, batch, rng)
             replayed.append(discriminator_scores(model.reward_module, sample.observations, sample.next_observations))
         rows.append((f"replayed (its buffer, {buffer_model.replay_buffer.pos} transitions)", replayed))
-    lines = ["| batches of distinct skills | contrastive loss | accuracy |", "|---|---:|---:|"]
+    lines = ["| batches of distinct skills | contrastive loss | accuracy | rank |", "|---|---:|---:|---:|"]
     for name, scores in rows:
-        loss, acc = [np.array([s[key] for s in scores]) for key in ("loss", "accuracy")]
-        lines.append(f"| {name} | {loss.mean():.3f} +- {loss.std():.3f} | {acc.mean():.4f} +- {acc.std():.4f} |")
-    lines.append(f"| chance | {math.log(batch):.3f} | {1 / batch:.4f} |")
+        loss, acc, rank = [np.array([s[key] for s in scores]) for key in ("loss", "accuracy", "rank")]
+        lines.append(f"| {name} | {loss.mean():.3f} +- {loss.std():.3f} | {acc.mean():.4f} +- {acc.std():.4f} | "
+                     f"{rank.mean():.3f} +- {rank.std():.3f} |")
+    lines.append(f"| chance | {math.log(batch):.3f} | {1 / batch:.4f} | 0.500 |")
     return lines
 
 

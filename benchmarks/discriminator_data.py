@@ -12,8 +12,8 @@ transition so far, from the policies of every stage) and finds that they memoris
   the whole buffer (the held-out skills excluded); both scored on the held-out recent skills and on fresh
   rollouts of the checkpoint's policy.
 
-Scores are the paper's cross-entropy and top-1 accuracy on batches of one transition per distinct skill
-(:mod:`sb3_cic.diagnostics`: chance is exactly log B and 1/B). Prints markdown.
+Scores are the paper's cross-entropy, top-1 accuracy and rank on batches of one transition per distinct skill
+(:mod:`sb3_cic.diagnostics`: chance is exactly log B, 1/B and 0.5). Prints markdown.
 
     python benchmarks/discriminator_data.py one-policy --snapshot SNAPSHOT.zip --domain-id URLB/quadruped-v0
     python benchmarks/discriminator_data.py recent --checkpoint COPY/checkpoint.zip --domain-id URLB/quadruped-v0
@@ -34,7 +34,7 @@ import torch as th  # noqa: E402
 from stable_baselines3.common.type_aliases import ReplayBufferSamples  # noqa: E402
 
 from sb3_cic import CIC  # noqa: E402
-from discriminator_generalisation import score_sets  # noqa: E402  (this folder is on sys.path when run)
+from discriminator_generalisation import cells, score_sets  # noqa: E402  (this folder is on sys.path when run)
 from sb3_cic.diagnostics import (  # noqa: E402
     one_per_skill,
     replay_one_per_skill,
@@ -53,8 +53,8 @@ def fresh_module(model: CIC) -> CICReward:
 
 
 def scores(module: CICReward, sets: dict[str, list[tuple[np.ndarray, np.ndarray]]]) -> str:
-    """``loss / accuracy`` (mean over the batches, :func:`discriminator_generalisation.score_sets`) as table cells."""
-    return " | ".join(f"{loss:.3f} / {accuracy:.3f}" for loss, accuracy in score_sets(module, sets).values())
+    """``loss / accuracy / rank`` (mean over the batches, :func:`discriminator_generalisation.score_sets`) as table cells."""
+    return cells(score_sets(module, sets))
 
 
 def one_policy(args: argparse.Namespace, rng: np.random.Generator) -> None:
@@ -79,7 +79,8 @@ def one_policy(args: argparse.Namespace, rng: np.random.Generator) -> None:
     print(f"# Discriminator trained on one policy's rollouts: {os.path.basename(args.snapshot)}\n")
     print(f"{len(segments)} skills rolled out ({rollout_s:.0f} s), {len(train)} for training ({len(obs_all)} n-step pairs), "
           f"{len(held)} held out. Chance: training batches log {BATCH} = {np.log(BATCH):.3f} / {1 / BATCH:.4f}, "
-          f"held-out log {b_held} = {np.log(b_held):.3f} / {1 / b_held:.4f}. Cells: loss / accuracy, mean of 4 batches.\n")
+          f"held-out log {b_held} = {np.log(b_held):.3f} / {1 / b_held:.4f}. Cells: loss / accuracy / rank (chance 0.5), "
+          "mean of 4 batches.\n")
     print("| discriminator | " + " | ".join(sets) + " |\n|---|---:|---:|")
     print(f"| the snapshot's own | {scores(model.reward_module, sets)} |")
     module = fresh_module(model)
@@ -114,8 +115,8 @@ def recent(args: argparse.Namespace, rng: np.random.Generator) -> None:
     print(f"# Discriminator trained on a buffer's newest transitions: {os.path.basename(args.checkpoint)}\n")
     print(f"Checkpoint at step {model.num_timesteps}: {stored} stored transitions; the newest {args.recent} hold "
           f"{len(newest_skills)} skills, {len(held)} held out. Chance: held-out log {b_held} = {np.log(b_held):.3f} / "
-          f"{1 / b_held:.4f}, fresh log {BATCH} = {np.log(BATCH):.3f} / {1 / BATCH:.4f}. Cells: loss / accuracy, "
-          f"mean of 4 batches.\n")
+          f"{1 / b_held:.4f}, fresh log {BATCH} = {np.log(BATCH):.3f} / {1 / BATCH:.4f}. Cells: loss / accuracy / "
+          f"rank (chance 0.5), mean of 4 batches.\n")
     print("| discriminator | " + " | ".join(sets) + " | |\n|---|---:|---:|---|")
     print(f"| the checkpoint's own (trained on all of it) | {scores(model.reward_module, sets)} | |")
     for name, indices in (("the newest transitions", recent_train), ("as many from the whole buffer", anywhere)):

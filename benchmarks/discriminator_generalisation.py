@@ -43,17 +43,22 @@ from sb3_cic.rewards.cic import CICReward  # noqa: E402
 from sb3_cic.study.checkpoint import RunFolder  # noqa: E402
 
 
-def score_sets(module: CICReward, sets: dict[str, list[tuple]]) -> dict[str, tuple[float, float]]:
-    """Mean loss and accuracy of ``module`` on each named list of ``(obs, next_obs)`` batches."""
+def score_sets(module: CICReward, sets: dict[str, list[tuple]]) -> dict[str, tuple[float, float, float]]:
+    """Mean loss, accuracy and rank of ``module`` on each named list of ``(obs, next_obs)`` batches."""
     out = {}
     for name, batches in sets.items():
         scores = [discriminator_scores(module, obs, next_obs) for obs, next_obs in batches]
-        out[name] = (float(np.mean([s["loss"] for s in scores])), float(np.mean([s["accuracy"] for s in scores])))
+        out[name] = tuple(float(np.mean([s[key] for s in scores])) for key in ("loss", "accuracy", "rank"))
     return out
 
 
-def row(name: str, scores: dict[str, tuple[float, float]], extra: str = "") -> str:
-    return f"| {name} | " + " | ".join(f"{loss:.3f} / {acc:.3f}" for loss, acc in scores.values()) + f" | {extra} |"
+def cells(scores: dict[str, tuple[float, float, float]]) -> str:
+    """``loss / accuracy / rank`` per set, as markdown table cells."""
+    return " | ".join(f"{loss:.3f} / {acc:.3f} / {rank:.3f}" for loss, acc, rank in scores.values())
+
+
+def row(name: str, scores: dict[str, tuple[float, float, float]], extra: str = "") -> str:
+    return f"| {name} | {cells(scores)} | {extra} |"
 
 
 def main() -> None:
@@ -92,7 +97,8 @@ def main() -> None:
     print(f"Checkpoint at step {model.num_timesteps}: {len(skill_of)} stored transitions of {n_skills} skills; "
           f"{len(held)} skills held out ({len(held_idx)} transitions). Batches of {args.batch} distinct skills "
           f"(held-out: {b_held}); chance loss log B = {np.log(args.batch):.3f} (held-out {np.log(b_held):.3f}), "
-          f"accuracy 1/B = {1 / args.batch:.4f}. Each cell: loss / accuracy, mean of {args.score_batches} batches.\n")
+          f"accuracy 1/B = {1 / args.batch:.4f}, rank 0.5. Each cell: loss / accuracy / rank (the share of the other "
+          f"skills' keys scored above the right one), mean of {args.score_batches} batches.\n")
     header = "| discriminator | " + " | ".join(sets) + " | |\n|---|" + "---:|" * len(sets) + "---|"
     print(header)
     print(row("the checkpoint's own (trained on all skills)", score_sets(own, sets)))
@@ -121,10 +127,10 @@ def main() -> None:
                  f"(each training transition seen {seen:.1f} times), {time.perf_counter() - start:.0f} s")
         print(row(f"fresh, trained offline: {name}", score_sets(module, sets), extra), flush=True)
     if curve:
-        print("\nThe default variant over its updates (loss / accuracy):\n")
+        print("\nThe default variant over its updates (loss / accuracy / rank):\n")
         print("| updates | " + " | ".join(sets) + " |\n|---:|" + "---:|" * len(sets))
         for update, scores in curve:
-            print(f"| {update} | " + " | ".join(f"{loss:.3f} / {acc:.3f}" for loss, acc in scores.values()) + " |")
+            print(f"| {update} | {cells(scores)} |")
 
 
 if __name__ == "__main__":

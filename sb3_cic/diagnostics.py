@@ -118,10 +118,13 @@ def replay_one_per_skill(
 
 @th.no_grad()
 def discriminator_scores(module: CICReward, obs: th.Tensor | np.ndarray, next_obs: th.Tensor | np.ndarray) -> dict[str, float]:
-    """The discriminator's contrastive loss and top-1 accuracy on one batch, beside chance (``log B``, ``1/B``).
+    """The discriminator's contrastive loss, top-1 accuracy and rank on one batch, beside chance (``log B``, ``1/B``, 0.5).
 
     The loss is the paper's cross-entropy whatever the module's variant (chance is ``log B`` for it); chance is
-    exact only when the batch holds one transition per distinct skill (see the module docstring).
+    exact only when the batch holds one transition per distinct skill (see the module docstring). The rank is
+    the graded form of the accuracy: per skill's query, the share of the other ``B - 1`` keys scored above its
+    own transition's key, averaged (0: always first; 0.5: an uninformed discriminator; 1: always last), so a
+    discriminator that places a skill coarsely, but not first among ``B``, shows it.
 
     :param module: the CIC reward module
     :param obs: ``(B, state + skill)`` observations ``[s, z]``
@@ -132,5 +135,8 @@ def discriminator_scores(module: CICReward, obs: th.Tensor | np.ndarray, next_ob
     zeros = th.zeros(len(obs), 1, device=device)
     query, key, _ = module.query_key(ReplayBufferSamples(obs, zeros, next_obs, zeros, zeros, None))
     loss, accuracy = module.contrastive_loss(query, key, variant="paper")
+    logits = module.logits(query, key)
     n = len(obs)
-    return {"loss": loss.item(), "accuracy": accuracy.item(), "chance_loss": math.log(n), "chance_accuracy": 1 / n}
+    rank = ((logits > logits.diagonal()[:, None]).sum(dim=1).float() / max(n - 1, 1)).mean()
+    return {"loss": loss.item(), "accuracy": accuracy.item(), "rank": rank.item(), "chance_loss": math.log(n),
+            "chance_accuracy": 1 / n, "chance_rank": 0.5}

@@ -33,13 +33,25 @@ def test_a_discriminator_handed_the_skill_is_near_perfect_and_a_random_one_is_at
     handed.state_net, handed.pred_net, handed.skill_net = nn.Identity(), SecondHalf(), nn.Identity()  # key = s' ~ z = query
     perfect = discriminator_scores(handed, obs, next_obs)
     assert perfect["chance_loss"] == pytest.approx(math.log(64)) and perfect["chance_accuracy"] == pytest.approx(1 / 64)
-    assert perfect["accuracy"] >= 0.95 and perfect["loss"] < 0.9 * math.log(64)
+    assert perfect["accuracy"] >= 0.95 and perfect["loss"] < 0.9 * math.log(64) and perfect["rank"] < 0.01
     handed.variant = "code"  # scored with the paper's cross-entropy whatever the training loss (chance: log B)
     assert discriminator_scores(handed, obs, next_obs) == perfect
     random = [discriminator_scores(CICReward(8, 2, skill_dim=8, hidden_dim=16), *distinct_skill_batch(seed=s))
               for s in range(10)]
     assert np.mean([r["loss"] for r in random]) == pytest.approx(math.log(64), rel=0.05)
     assert np.mean([r["accuracy"] for r in random]) < 0.1  # chance 1/64; the handed one scores >= 0.95
+    assert np.mean([r["rank"] for r in random]) == pytest.approx(0.5, abs=0.05) and random[0]["chance_rank"] == 0.5
+
+
+def test_rank_counts_the_keys_scored_above_the_positive():
+    module = CICReward(2, 1, skill_dim=2, hidden_dim=8)
+    module.state_net, module.pred_net, module.skill_net = nn.Identity(), SecondHalf(), nn.Identity()  # query z, key s'
+    z = th.tensor([[1.0, 0.0], [0.0, 1.0], [1.0, 1.0]])
+    next_state = th.tensor([[0.0, 1.0], [0.1, 1.0], [1.0, 1.0]])
+    scores = discriminator_scores(module, th.cat([next_state, z], 1), th.cat([next_state, z], 1))
+    # cosines, row by row: (0, 0.0995, 0.707): both other keys above its own; (1, 0.995, 0.707): one of two;
+    # (0.707, 0.774, 1): none. Rank (2/2 + 1/2 + 0) / 3; only row 2 is top-1.
+    assert scores["rank"] == pytest.approx(0.5) and scores["accuracy"] == pytest.approx(1 / 3)
 
 
 def test_fresh_rollout_batches_hold_one_transition_per_skill():

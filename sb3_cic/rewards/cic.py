@@ -84,12 +84,16 @@ class CICReward(RewardModule):
         self.particle = ParticleEntropy(k=knn_k, avg=knn_avg, rms=knn_rms, clip=knn_clip, divide_by=divide_by)
         self.make_optimizer()
 
+    def logits(self, query: th.Tensor, key: th.Tensor) -> th.Tensor:
+        """The discriminator's ``(B, B)`` logits: cosine similarities of queries and keys over the temperature."""
+        return F.normalize(query, dim=1) @ F.normalize(key, dim=1).T / self.temperature
+
     def contrastive_loss(self, query: th.Tensor, key: th.Tensor, variant: str | None = None) -> tuple[th.Tensor, th.Tensor]:
-        """The contrastive loss of the normalised ``query @ key.T / T`` (diagonal positives); also top-1 accuracy.
+        """The contrastive loss of :meth:`logits` (diagonal positives); also top-1 accuracy.
 
         :param variant: "paper" or "code" (default: the module's)
         """
-        logits = F.normalize(query, dim=1) @ F.normalize(key, dim=1).T / self.temperature
+        logits = self.logits(query, key)
         labels = th.arange(logits.shape[0], device=logits.device)
         accuracy = (logits.argmax(dim=1) == labels).float().mean()
         if (variant or self.variant) == "paper":
