@@ -134,8 +134,8 @@ def discriminator_scores(module: CICReward, obs: th.Tensor | np.ndarray, next_ob
     obs, next_obs = th.as_tensor(obs, device=device), th.as_tensor(next_obs, device=device)
     zeros = th.zeros(len(obs), 1, device=device)
     query, key, _ = module.query_key(ReplayBufferSamples(obs, zeros, next_obs, zeros, zeros, None))
-    loss, accuracy = module.contrastive_loss(query, key, variant="paper")
     logits = module.logits(query, key)
+    loss, accuracy = module.loss_of_logits(logits, variant="paper")
     n = len(obs)
     rank = ((logits > logits.diagonal()[:, None]).sum(dim=1).float() / max(n - 1, 1)).mean()
     return {"loss": loss.item(), "accuracy": accuracy.item(), "rank": rank.item(), "chance_loss": math.log(n),

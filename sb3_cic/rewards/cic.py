@@ -93,7 +93,10 @@ class CICReward(RewardModule):
 
         :param variant: "paper" or "code" (default: the module's)
         """
-        logits = self.logits(query, key)
+        return self.loss_of_logits(self.logits(query, key), variant)
+
+    def loss_of_logits(self, logits: th.Tensor, variant: str | None = None) -> tuple[th.Tensor, th.Tensor]:
+        """:meth:`contrastive_loss` and top-1 accuracy of already computed :meth:`logits`."""
         labels = th.arange(logits.shape[0], device=logits.device)
         accuracy = (logits.argmax(dim=1) == labels).float().mean()
         if (variant or self.variant) == "paper":
