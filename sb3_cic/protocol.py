@@ -16,7 +16,8 @@ another snapshot; DDPG ("from scratch") has no pre-training. A run whose ``resul
 not run again; an unfinished one resumes. Hyperparameters come from ``zoo_configs/<method>.yml`` (read with rl_zoo3, see
 :func:`sb3_cic.zoo.zoo_hyperparams`), with the small-scale options of :class:`Settings` on top.
 Evaluation: :class:`~sb3_cic.callbacks.URLBEvalCallback` (deterministic episodes at step 0 and every
-``eval_freq`` steps, plus one at the end if the schedule misses it); the final return is that of
+``eval_freq`` steps, plus one at the end if the schedule misses it; with the grid sweep, step 0 is evaluated
+with the sweep's first candidate, as no skill is chosen yet); the final return is that of
 the last evaluation, the normalised score ``return / expert`` (:data:`sb3_cic.constants.EXPERT_SCORES`).
 """
 

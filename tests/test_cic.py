@@ -206,6 +206,27 @@ def test_grid_sweep_fixes_the_best_skill(tiny):
     assert int(np.argmax(returns)) == 7 and returns[7] == pytest.approx(100.0)
 
 
+def test_step_0_evaluation_uses_the_sweeps_first_candidate(tiny):
+    """No skill is chosen at step 0, so the evaluation there takes the sweep's first candidate (sb3_cic.protocol)."""
+    from sb3_cic.callbacks import URLBEvalCallback
+
+    seen = []
+
+    class Recording(URLBEvalCallback):
+        def _evaluate(self):
+            super()._evaluate()
+            seen.append((self.num_timesteps, self.eval_env.env_method("get_skill")[0].copy()))
+
+    env = SkillReward(SkillObservationWrapper(gym.make("URLB/point_mass-reach-v0"), UniformSkillPrior(2)))
+    tiny["learning_starts"] = 1100
+    model = CIC("MlpPolicy", env, skill_dim=2, reward_free=False, **tiny)
+    evaluation = Recording("URLB/point_mass-reach-v0", eval_freq=1200, n_eval_episodes=1)
+    model.learn(1300, callback=[SkillGridSweepCallback(sweep_steps=1100, window=100), evaluation])
+    assert [step for step, _ in seen] == [0, 1200]
+    np.testing.assert_allclose(seen[0][1], [0.0, 0.0])
+    np.testing.assert_allclose(seen[1][1], [0.7, 0.7], atol=1e-6)
+
+
 def test_fixed_choice_and_auto_sweep_on_finetune(tmp_path, tiny):
     model = CIC("MlpPolicy", "URLB/point_mass-v0", skill_dim=3, finetune_skill_choice="fixed", **tiny)
     model.learn(300)
