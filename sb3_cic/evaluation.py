@@ -8,11 +8,13 @@ Reads ``<study>/finetune/<label>/<task>/seed_<k>/result.json`` and ``eval.csv`` 
   mean and optimality gap of normalised scores over the runs x tasks matrix with stratified-bootstrap
   95% intervals (rliable, Agarwal et al., 2021); wall times;
 * ``report.json``: the same numbers;
-* ``aggregates.png`` (rliable's ``plot_interval_estimates``) and ``learning_curves.png``
+* ``aggregates.png`` (rliable's ``plot_interval_estimates``; ``aggregates_1.png``, ... for the
+  comparisons over smaller task sets) and ``learning_curves.png``
   (evaluation return against fine-tuning steps, mean +- s.e. over seeds, one panel per task).
 
 The runs of a method are the seeds it has on every one of its tasks (rliable needs a full matrix).
-Aggregates need normalised scores, i.e. tasks with an expert score.
+Methods that ran different tasks are aggregated once per task set (:func:`comparisons`). Aggregates
+need normalised scores, i.e. tasks with an expert score.
 """
 
 from __future__ import annotations
@@ -98,12 +100,20 @@ def per_task(results: list[dict[str, Any]]) -> list[dict[str, Any]]:
     return rows
 
 
-def common_tasks(results: list[dict[str, Any]]) -> list[str]:
-    """The tasks every method label of ``results`` ran."""
+def comparisons(results: list[dict[str, Any]]) -> list[tuple[list[str], list[str]]]:
+    """The task sets to aggregate over, each with the method labels that ran all of its tasks.
+
+    One comparison per distinct set of tasks some label ran, largest first: a label that ran fewer tasks
+    (a fine-tuning from an early snapshot on one task, say) gets its own comparison with every label on its
+    tasks, and does not shrink the others' to its tasks. Labels that ran the same tasks give one comparison.
+
+    :return: ``[(tasks, labels), ...]``, sorted by decreasing number of tasks
+    """
     tasks: dict[str, set[str]] = defaultdict(set)
     for result in results:
         tasks[result["label"]].add(result["task"])
-    return sorted(set.intersection(*tasks.values())) if tasks else []
+    sets = sorted({frozenset(t) for t in tasks.values()}, key=lambda t: (-len(t), sorted(t)))
+    return [(sorted(s), sorted(label for label, t in tasks.items() if s <= t)) for s in sets]
 
 
 def score_matrices(
@@ -261,10 +271,10 @@ def write_report(study: str | Path, reps: int = 2000, seed: int = 0) -> dict[str
     if not results:
         raise FileNotFoundError(f"no fine-tuning results under {study / 'finetune'}")
     rows = per_task(results)
-    # methods that ran different tasks are compared on the tasks they all ran
-    all_tasks, shared = sorted({r["task"] for r in results}), common_tasks(results)
-    matrices, tasks_of, seeds_of = score_matrices(results, shared if shared and shared != all_tasks else None)
-    aggregates = aggregate_scores(matrices, reps=reps, seed=seed)
+    groups = []
+    for tasks, labels in comparisons(results):
+        matrices, _, seeds_of = score_matrices([r for r in results if r["label"] in labels], tasks)
+        groups.append((tasks, matrices, seeds_of, aggregate_scores(matrices, reps=reps, seed=seed)))
 
     lines = [f"# URLB report: `{study.name}`", ""]
     lines += [
@@ -294,19 +304,23 @@ def write_report(study: str | Path, reps: int = 2000, seed: int = 0) -> dict[str
     for row in rows:
         lines.append(f"| {row['method']} | {row['task']} | {row['n']} | {_pm(row['auc_mean'], row['auc_se'], 1)} |")
     lines += ["", f"## Aggregates (normalised scores, rliable, stratified bootstrap 95% CI, {reps} reps)", ""]
-    if shared and shared != all_tasks:
-        lines += [f"Over the tasks every method ran: {', '.join(shared)}.", ""]
-    if aggregates:
+    if not any(aggregates for *_, aggregates in groups):
+        lines += ["No method has normalised scores on all its tasks (no expert score): no aggregates.", ""]
+    figures = 0
+    for tasks, _, seeds_of, aggregates in groups:
+        if not aggregates:
+            continue
+        figure = "aggregates.png" if figures == 0 else f"aggregates_{figures}.png"
+        figures += 1
+        lines += [f"Over {', '.join(tasks)}:", ""]
         lines += ["| method | runs x tasks | IQM | median | mean | optimality gap |", "|---|---:|---:|---:|---:|---:|"]
         for label, agg in aggregates.items():
             cells = [f"{_fmt(agg[k]['point'])} [{_fmt(agg[k]['low'])}, {_fmt(agg[k]['high'])}]" for k in METRICS]
-            lines.append(f"| {label} | {len(seeds_of[label])} x {len(tasks_of[label])} | " + " | ".join(cells) + " |")
-        plot_aggregates(aggregates, study / "aggregates.png")
-        lines += ["", "![aggregates](aggregates.png)"]
-    else:
-        lines.append("No method has normalised scores on all its tasks (no expert score): no aggregates.")
+            lines.append(f"| {label} | {len(seeds_of[label])} x {len(tasks)} | " + " | ".join(cells) + " |")
+        plot_aggregates(aggregates, study / figure)
+        lines += ["", f"![aggregates]({figure})", ""]
     plot_learning_curves(results, study / "learning_curves.png")
-    lines += ["", "## Learning curves", "", "![learning curves](learning_curves.png)", "", "## Wall time", ""]
+    lines += ["## Learning curves", "", "![learning curves](learning_curves.png)", "", "## Wall time", ""]
     lines += ["| method | task | pre-training (s) | fine-tuning per run (s) |", "|---|---|---:|---:|"]
     for row in rows:
         pre, fine = _fmt(row["pretrain_wall_s"], 1), _fmt(row["finetune_wall_s"], 1)
@@ -317,10 +331,14 @@ def write_report(study: str | Path, reps: int = 2000, seed: int = 0) -> dict[str
         "study": str(study),
         "reps": reps,
         "per_task": rows,
-        "aggregates": aggregates,
-        "matrices": {
-            label: {"tasks": tasks_of[label], "seeds": seeds_of[label], "scores": m.tolist()} for label, m in matrices.items()
-        },
+        "comparisons": [
+            {
+                "tasks": tasks,
+                "aggregates": aggregates,
+                "matrices": {label: {"seeds": seeds_of[label], "scores": m.tolist()} for label, m in matrices.items()},
+            }
+            for tasks, matrices, seeds_of, aggregates in groups
+        ],
     }
     (study / "report.json").write_text(json.dumps(report, indent=2, default=float))
     return report

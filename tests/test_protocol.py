@@ -108,25 +108,27 @@ def test_report_numbers(study: Path):
         assert row["auc_se"] == pytest.approx(np.std(areas, ddof=1) / np.sqrt(2))
         assert f"| {label} | {task} | 2 | {np.mean(areas):.1f} ± " in markdown
 
-    assert "Over the tasks every method ran: walker_stand." in markdown  # DDPG ran stand only
-    for label in ("cic", "ddpg"):
-        tasks = ["walker_stand"]
-        assert report["matrices"][label]["tasks"] == tasks
-        score = {(r["task"], r["seed"]): r["final_normalized_score"] for r in results if r["label"] == label}
-        matrix = np.array([[score[(t, s)] for t in tasks] for s in SEEDS])  # runs x tasks
-        flat = np.sort(matrix.ravel())
-        cut = int(0.25 * flat.size)
-        iqm = flat[cut : flat.size - cut].mean()
-        agg = report["aggregates"][label]
-        assert agg["IQM"]["point"] == pytest.approx(iqm)
-        assert agg["Median"]["point"] == pytest.approx(np.median(matrix.mean(axis=0)))  # rliable: median of task means
-        assert agg["Mean"]["point"] == pytest.approx(matrix.mean())
-        assert agg["Optimality Gap"]["point"] == pytest.approx(np.mean(1.0 - np.minimum(matrix, 1.0)))
-        for metric in agg.values():
-            assert metric["low"] <= metric["point"] + 1e-9 and metric["point"] <= metric["high"] + 1e-9
-        assert f"{iqm:.3f} [" in markdown
+    # CIC ran flip and stand, DDPG stand only: CIC alone over both, then both methods over stand
+    assert [c["tasks"] for c in report["comparisons"]] == [["walker_flip", "walker_stand"], ["walker_stand"]]
+    assert list(report["comparisons"][0]["aggregates"]) == ["cic"]
+    assert "Over walker_flip, walker_stand:" in markdown and "Over walker_stand:" in markdown
+    for tasks, comparison in ((c["tasks"], c) for c in report["comparisons"]):
+        for label, agg in comparison["aggregates"].items():
+            score = {(r["task"], r["seed"]): r["final_normalized_score"] for r in results if r["label"] == label}
+            matrix = np.array([[score[(t, s)] for t in tasks] for s in SEEDS])  # runs x tasks
+            np.testing.assert_allclose(comparison["matrices"][label]["scores"], matrix)
+            flat = np.sort(matrix.ravel())
+            cut = int(0.25 * flat.size)
+            iqm = flat[cut : flat.size - cut].mean()
+            assert agg["IQM"]["point"] == pytest.approx(iqm)
+            assert agg["Median"]["point"] == pytest.approx(np.median(matrix.mean(axis=0)))  # rliable: median of task means
+            assert agg["Mean"]["point"] == pytest.approx(matrix.mean())
+            assert agg["Optimality Gap"]["point"] == pytest.approx(np.mean(1.0 - np.minimum(matrix, 1.0)))
+            for metric in agg.values():
+                assert metric["low"] <= metric["point"] + 1e-9 and metric["point"] <= metric["high"] + 1e-9
+            assert f"| {label} | 2 x {len(tasks)} | {iqm:.3f} [" in markdown
 
-    for name in ("aggregates.png", "learning_curves.png"):
+    for name in ("aggregates.png", "aggregates_1.png", "learning_curves.png"):
         assert (study / name).stat().st_size > 1000
         assert (study / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
@@ -176,15 +178,18 @@ def test_zoo_cli_train_finetune_enjoy(tmp_path: Path, monkeypatch: pytest.Monkey
     th.set_num_threads(threads)
 
 
-def test_aggregates_compare_methods_on_their_common_tasks():
+def test_comparisons_give_each_task_set_its_methods():
     def run(label, task, seed, score):
         return {"label": label, "task": task, "seed": seed, "final_normalized_score": score}
 
     results = [run("cic", t, s, 0.1 * s + (t == "b")) for t in "ab" for s in (0, 1)]
-    results += [run("ddpg", t, s, 0.2) for t in "ab" for s in (0, 1)] + [run("ddpg", "c", 0, 0.9)]
-    assert evaluation.common_tasks(results) == ["a", "b"]
+    results += [run("ddpg", t, s, 0.2) for t in "ab" for s in (0, 1)] + [run("cic@100", "b", s, 0.5) for s in (0, 1)]
+    # an early snapshot fine-tuned on task b only does not shrink the main comparison to b
+    assert evaluation.comparisons(results) == [(["a", "b"], ["cic", "ddpg"]), (["b"], ["cic", "cic@100", "ddpg"])]
+    results.append(run("ddpg", "c", 0, 0.9))
+    assert evaluation.comparisons(results)[:2] == [(["a", "b", "c"], ["ddpg"]), (["a", "b"], ["cic", "ddpg"])]
     everything, _, seeds_all = evaluation.score_matrices(results)
     assert seeds_all["ddpg"] == [0] and everything["ddpg"].shape == (1, 3)  # task c has seed 0 only
     matrices, tasks_of, seeds_of = evaluation.score_matrices(results, ["a", "b"])
-    assert tasks_of == {"cic": ["a", "b"], "ddpg": ["a", "b"]} and seeds_of["ddpg"] == [0, 1]
+    assert tasks_of["cic"] == tasks_of["ddpg"] == ["a", "b"] and seeds_of["ddpg"] == [0, 1]
     np.testing.assert_allclose(matrices["cic"], [[0.0, 1.0], [0.1, 1.1]])
