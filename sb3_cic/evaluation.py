@@ -13,7 +13,7 @@ Reads ``<study>/finetune/<label>/<task>/seed_<k>/result.json`` and ``eval.csv`` 
   (evaluation return against fine-tuning steps, mean +- s.e. over seeds, one panel per task).
 
 The runs of a method are the seeds it has on every one of its tasks (rliable needs a full matrix).
-Methods that ran different tasks are aggregated once per task set (:func:`comparisons`). Aggregates
+Methods that ran different tasks are compared once per task set (:func:`comparisons`). Aggregates
 need normalised scores, i.e. tasks with an expert score.
 """
 
@@ -103,9 +103,11 @@ def per_task(results: list[dict[str, Any]]) -> list[dict[str, Any]]:
 def comparisons(results: list[dict[str, Any]]) -> list[tuple[list[str], list[str]]]:
     """The task sets to aggregate over, each with the method labels that ran all of its tasks.
 
-    One comparison per distinct set of tasks some label ran, largest first: a label that ran fewer tasks
-    (a fine-tuning from an early snapshot on one task, say) gets its own comparison with every label on its
-    tasks, and does not shrink the others' to its tasks. Labels that ran the same tasks give one comparison.
+    One comparison per distinct set of tasks some label ran, largest first, kept when at least two labels
+    ran all its tasks: a label that ran fewer tasks (a fine-tuning from an early snapshot on one task, say)
+    gets its own comparison with every label on its tasks, and does not shrink the others' to its tasks.
+    Labels that ran the same tasks give one comparison. If no two labels share a task set, each label is
+    aggregated alone over its own tasks.
 
     :return: ``[(tasks, labels), ...]``, sorted by decreasing number of tasks
     """
@@ -113,7 +115,9 @@ def comparisons(results: list[dict[str, Any]]) -> list[tuple[list[str], list[str
     for result in results:
         tasks[result["label"]].add(result["task"])
     sets = sorted({frozenset(t) for t in tasks.values()}, key=lambda t: (-len(t), sorted(t)))
-    return [(sorted(s), sorted(label for label, t in tasks.items() if s <= t)) for s in sets]
+    groups = [(sorted(s), sorted(label for label, t in tasks.items() if s <= t)) for s in sets]
+    shared = [group for group in groups if len(group[1]) > 1]
+    return shared or groups
 
 
 def score_matrices(
@@ -328,7 +332,7 @@ def write_report(study: str | Path, reps: int = 2000, seed: int = 0) -> dict[str
     (study / "report.md").write_text("\n".join(lines) + "\n")
 
     report = {
-        "study": str(study),
+        "study": study.name,
         "reps": reps,
         "per_task": rows,
         "comparisons": [
