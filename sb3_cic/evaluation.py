@@ -308,14 +308,11 @@ def write_report(study: str | Path, reps: int = 2000, seed: int = 0) -> dict[str
     for row in rows:
         lines.append(f"| {row['method']} | {row['task']} | {row['n']} | {_pm(row['auc_mean'], row['auc_se'], 1)} |")
     lines += ["", f"## Aggregates (normalised scores, rliable, stratified bootstrap 95% CI, {reps} reps)", ""]
-    if not any(aggregates for *_, aggregates in groups):
+    shown = [group for group in groups if group[3]]
+    if not shown:
         lines += ["No method has normalised scores on all its tasks (no expert score): no aggregates.", ""]
-    figures = 0
-    for tasks, _, seeds_of, aggregates in groups:
-        if not aggregates:
-            continue
-        figure = "aggregates.png" if figures == 0 else f"aggregates_{figures}.png"
-        figures += 1
+    for i, (tasks, _, seeds_of, aggregates) in enumerate(shown):
+        figure = "aggregates.png" if i == 0 else f"aggregates_{i}.png"
         lines += [f"Over {', '.join(tasks)}:", ""]
         lines += ["| method | runs x tasks | IQM | median | mean | optimality gap |", "|---|---:|---:|---:|---:|---:|"]
         for label, agg in aggregates.items():
