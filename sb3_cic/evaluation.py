@@ -23,7 +23,6 @@ import argparse
 import csv
 import json
 import math
-import warnings
 from collections import defaultdict
 from pathlib import Path
 from typing import Any, Sequence
@@ -171,11 +170,18 @@ def aggregate_scores(
             ]
         )
 
-    with warnings.catch_warnings():  # arch's notice that ``random_state`` will be renamed
-        warnings.simplefilter("ignore", FutureWarning)
-        points, intervals = rly.get_interval_estimates(
-            matrices, aggregates, reps=reps, random_state=np.random.RandomState(seed)
-        )
+    # rliable's StratifiedBootstrap draws its resamples from NumPy's global generator (``random_state`` only
+    # reaches arch, which does not draw them), so the global state is seeded here, per method so that a method's
+    # interval does not depend on the others in the report, and restored afterwards.
+    points, intervals = {}, {}
+    state = np.random.get_state()
+    try:
+        for label, scores in matrices.items():
+            np.random.seed(seed)
+            point, interval = rly.get_interval_estimates({label: scores}, aggregates, reps=reps)
+            points[label], intervals[label] = point[label], interval[label]
+    finally:
+        np.random.set_state(state)
     return {
         label: {
             name: {

@@ -194,3 +194,19 @@ def test_comparisons_give_each_task_set_its_methods():
     matrices, tasks_of, seeds_of = evaluation.score_matrices(results, ["a", "b"])
     assert tasks_of["cic"] == tasks_of["ddpg"] == ["a", "b"] and seeds_of["ddpg"] == [0, 1]
     np.testing.assert_allclose(matrices["cic"], [[0.0, 1.0], [0.1, 1.1]])
+
+
+def test_bootstrap_intervals_are_reproducible():
+    rng = np.random.default_rng(3)
+    matrices = {"cic": rng.random((5, 3)), "ddpg": rng.random((5, 3))}
+    np.random.seed(7)
+    outside = np.random.get_state()[1].copy()
+    first = evaluation.aggregate_scores(matrices, reps=300, seed=0)
+    np.testing.assert_array_equal(np.random.get_state()[1], outside)  # NumPy's global generator is left as it was
+    np.random.rand(10)  # a draw in between changes nothing
+    assert evaluation.aggregate_scores(matrices, reps=300, seed=0) == first
+    # a method's interval does not depend on the other methods of the report
+    assert evaluation.aggregate_scores({"ddpg": matrices["ddpg"]}, reps=300, seed=0)["ddpg"] == first["ddpg"]
+    other = evaluation.aggregate_scores(matrices, reps=300, seed=1)
+    assert other["cic"]["IQM"]["point"] == first["cic"]["IQM"]["point"]
+    assert other["cic"]["IQM"]["low"] != first["cic"]["IQM"]["low"]  # the seed drives the resampling
