@@ -3,6 +3,7 @@ smoke runs on the point mass, and APS's task regression."""
 
 from __future__ import annotations
 
+import copy
 import math
 
 import numpy as np
@@ -16,6 +17,7 @@ from sb3_cic import APS, APSRegressionCallback
 from sb3_cic.methods.aps import APSCritic, regress_task
 from sb3_cic.rewards.aps import APSReward
 from sb3_cic.rewards.apt import APTReward
+from sb3_cic.rewards.base import RewardModule
 from sb3_cic.rewards.diayn import DIAYNReward
 from sb3_cic.rewards.disagreement import DisagreementReward
 from sb3_cic.rewards.icm import ICMReward
@@ -119,6 +121,54 @@ def test_proto_reward_and_sinkhorn():
     metrics = module.update(batch)
     assert metrics["proto_loss"].item() > 0
     th.testing.assert_close(module.predictor_target.weight, before.lerp(module.predictor.weight, 0.05))
+
+
+def test_proto_reward_of_a_queued_copy_is_exactly_zero():
+    """A point with three exact copies of itself in the queue is at distance 0 from its 3rd nearest, as in URLB."""
+    module = ProtoReward(STATE, ACT, pred_dim=16, proj_dim=8, num_protos=4, queue_size=64, topk=3)
+    batch = make_batch(n=8)
+    z = module.embed(batch.next_observations)
+    with th.no_grad():
+        module.queue.copy_(F.normalize(th.randn(64, 16, generator=th.Generator().manual_seed(3)), dim=1))
+        module.queue[:12] = z.detach().repeat(2, 1)[:12]  # rows 0-3 of the batch queued three times (one is re-queued)
+        module.queue[12:16] = z.detach()[:4]
+        module.queue_ptr.fill_(40.0)  # the reward's own candidates land past the copies
+    reward = module.reward(batch)
+    assert th.equal(reward[:4], th.zeros(4, 1))
+    th.testing.assert_close(reward, brute_knn(z, module.queue, 3)[:, 2:3], atol=1e-6, rtol=1e-6)
+
+
+MODULES = {
+    "icm": lambda: ICMReward(STATE, ACT, hidden_dim=8),
+    "disagreement": lambda: DisagreementReward(STATE, ACT, hidden_dim=8),
+    "rnd": lambda: RNDReward(STATE, ACT, hidden_dim=8, rep_dim=4),
+    "apt": lambda: APTReward(STATE, ACT, hidden_dim=8, rep_dim=6),
+    "proto": lambda: ProtoReward(STATE, ACT, pred_dim=4, proj_dim=8, num_protos=6, queue_size=12, topk=3),
+    "diayn": lambda: DIAYNReward(STATE, ACT, skill_dim=16, hidden_dim=8),
+    "aps": lambda: APSReward(STATE, ACT, skill_dim=10, hidden_dim=8),
+}
+# SMM is not among them: its fused path draws the VAE's noise once for the reward and the loss, as the reference
+# does, where reward-then-update draws it twice (the same in distribution, not draw for draw)
+SKILLS = {"diayn": lambda: one_hot(32, 16), "aps": lambda: F.normalize(th.randn(32, 10), dim=1)}
+
+
+@pytest.mark.parametrize("name", sorted(MODULES))
+def test_fused_update_and_reward_equals_reward_then_update(name):
+    """Each module's ``update_and_reward`` (fused or the base class's) gives the reward and leaves the networks,
+    running statistics and queues exactly where the base class's reward-then-update does."""
+    th.manual_seed(0)
+    fused = MODULES[name]()
+    plain = copy.deepcopy(fused)
+    skill = SKILLS[name]() if name in SKILLS else None
+    for step in range(3):
+        batch = make_batch(n=32, skill=skill, seed=step)
+        th.manual_seed(step)
+        r_fused, _ = fused.update_and_reward(batch)
+        th.manual_seed(step)
+        r_plain, _ = RewardModule.update_and_reward(plain, batch)
+        th.testing.assert_close(r_fused, r_plain, atol=1e-5, rtol=1e-5)
+    for key, value in plain.state_dict().items():
+        th.testing.assert_close(fused.state_dict()[key], value, atol=1e-5, rtol=1e-5, msg=f"{name}: {key}")
 
 
 def test_diayn_reward():

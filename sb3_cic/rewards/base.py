@@ -54,7 +54,9 @@ class RewardModule(nn.Module):
     def update_and_reward(self, batch: ReplayBufferSamples) -> tuple[th.Tensor, dict[str, th.Tensor]]:
         """Relabel a sampled batch: its intrinsic reward (networks as sampled), then one update.
 
-        Subclasses may fuse the two to share forward passes; the result must be the same.
+        Subclasses may fuse the two to share forward passes; the result must be the same (networks, running
+        statistics and queues included). SMM's fused path alone differs draw for draw: its reward and loss share
+        one sample of the VAE's noise, as the reference's do.
         """
         with th.no_grad():
             reward = self.reward(batch)

@@ -37,9 +37,13 @@ class RunningMeanStd(nn.Module):
 def knn_distances(source: th.Tensor, target: th.Tensor, k: int) -> th.Tensor:
     """Euclidean distances from each ``source`` row to its ``k`` nearest ``target`` rows, ascending.
 
-    Computed from matrix products (``|a|^2 + |b|^2 - 2 a.b``) and ``topk``; no ``B x B x D`` tensor. On the
-    CPU, with ``speed_options.knn_partition``, numpy's ``partition`` selects the same k values faster.
-    When ``source`` is ``target`` a point is its own first neighbour (distance 0), as in URLB.
+    The neighbours are selected on squared distances from matrix products (``|a|^2 + |b|^2 - 2 a.b``) and
+    ``topk`` (no ``B1 x B2 x D`` tensor); on the CPU, with ``speed_options.knn_partition``, numpy's
+    ``argpartition`` selects the same neighbours faster. The ``k`` distances returned are then computed
+    exactly from the differences to the selected rows (``B1 x k x D``): the expanded form's float32 rounding
+    (up to ~1e-3 for unit vectors) would otherwise give a point a non-zero distance to an exact copy of itself,
+    as URLB's broadcast ``torch.norm`` does not. When ``source`` is ``target`` a point is its own first
+    neighbour (distance 0), as in URLB.
 
     :param source: ``(B1, D)``
     :param target: ``(B2, D)``
@@ -47,17 +51,16 @@ def knn_distances(source: th.Tensor, target: th.Tensor, k: int) -> th.Tensor:
     :return: ``(B1, k)``
     """
     sq = (source.pow(2).sum(1, keepdim=True) + target.pow(2).sum(1).unsqueeze(0)).addmm_(source, target.T, alpha=-2.0)
-    if source is target:  # exactly 0, not the float rounding residue of |a|^2 + |a|^2 - 2 a.a
-        sq.diagonal().zero_()
+    if source is target:  # a point selects itself first, whatever the rounding residue of |a|^2 + |a|^2 - 2 a.a
+        sq.diagonal().fill_(-1.0)
     numpy_ok = sq.device.type == "cpu" and sq.dtype in (th.float32, th.float64) and not sq.requires_grad
     if speed_options.knn_partition and numpy_ok and k < sq.shape[1]:
-        # the same k values as topk, in the same order: numpy's introselect in place (sq is ours), then a sort of the k
-        selected = sq.numpy()
-        selected.partition(k - 1, axis=1)
-        nearest = th.from_numpy(np.sort(selected[:, :k], axis=1))
+        # the same k neighbours as topk: numpy's introselect, without a sort of the whole row
+        index = th.from_numpy(np.argpartition(sq.numpy(), k - 1, axis=1)[:, :k])
     else:
-        nearest = th.topk(sq, k, dim=1, largest=False, sorted=True).values
-    return nearest.clamp_(min=0.0).sqrt_()
+        index = th.topk(sq, k, dim=1, largest=False, sorted=False).indices
+    distances = th.linalg.vector_norm(source.unsqueeze(1) - target[index], dim=2)
+    return distances.sort(dim=1).values
 
 
 #: floor of the running statistic the distances are divided by: a first batch of identical points (training
