@@ -176,6 +176,12 @@ class DMCEnv(gym.Env):
         return scaled
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
+        """Step the physics with ``action`` (in [-1, 1], rescaled to the control bounds).
+
+        :param action: the action
+        :return: observation, reward (0 when ``reward_free``), terminated (dm_control's discount 0),
+            truncated (the time limit), and ``info`` with the task reward under ``"task_reward"``
+        """
         time_step = self._env.step(self._control(action))
         task_reward = float(time_step.reward or 0.0)
         terminated = truncated = False

@@ -5,14 +5,14 @@ A dm_control composer task built on the public pieces of :mod:`dm_control.manipu
 prop initialisers and the "perfect features" observation settings), with the brick at a fixed
 position per task instead of a random one:
 
-=====================  ===============
-task                   brick (x, y)
-=====================  ===============
-``reach_top_left``     (-0.09, 0.09)
-``reach_top_right``    (0.09, 0.09)
-``reach_bottom_left``  (-0.09, -0.09)
-``reach_bottom_right`` (0.09, -0.09)
-=====================  ===============
+======================  ===============
+task                    brick (x, y)
+======================  ===============
+``reach_top_left``      (-0.09, 0.09)
+``reach_top_right``     (0.09, 0.09)
+``reach_bottom_left``   (-0.09, -0.09)
+``reach_bottom_right``  (0.09, -0.09)
+======================  ===============
 
 Each episode the brick is put at z = 0.001 with a uniformly random rotation about z and left to
 settle; the hand's tool centre point (its pinch site) is put, pointing down, at a uniform point of
