@@ -10,8 +10,7 @@ from sb3_cic.constants import EXPERT_SCORES, normalized_score
 from sb3_cic.ddpg import URLBDDPG
 from sb3_cic.methods import APS, APT, CIC, DIAYN, ICM, RND, SMM, APSRegressionCallback, Disagreement, ProtoRL
 from sb3_cic.skills import OneHotSkillPrior, SkillPrior, SphereSkillPrior, UniformSkillPrior
-
-__version__ = "0.1.0"
+from sb3_cic.version import __version__
 
 __all__ = [
     "CIC",

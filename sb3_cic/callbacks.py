@@ -12,9 +12,9 @@ from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import DummyVecEnv
 
 from envs.skill_wrapper import SkillObservationWrapper
-
+from sb3_cic.common.env_util import prepare_env
+from sb3_cic.common.resumable import ResumableCallback, env_state, set_env_state
 from sb3_cic.constants import normalized_score
-from sb3_cic.study.checkpoint import ResumableCallback, env_state, set_env_state
 
 
 class SkillSelectionCallback(ResumableCallback):
@@ -25,6 +25,15 @@ class SkillSelectionCallback(ResumableCallback):
 
     :param verbose: verbosity
     """
+
+    @classmethod
+    def for_model(cls, model: Any, **kwargs: Any) -> SkillSelectionCallback:
+        """The callback a method's fine-tuning uses (its ``finetune_skill_choices`` entry), with the model's verbosity.
+
+        :param model: the model about to be fine-tuned
+        :param kwargs: the callback's arguments
+        """
+        return cls(**kwargs, verbose=model.verbose)
 
     def _on_training_start(self) -> None:
         if self.resumed:  # the checkpoint restored the selection, the skill and the envs
@@ -99,6 +108,15 @@ class SkillGridSweepCallback(SkillSelectionCallback):
         self.window = window
         self.act_with_policy = act_with_policy
         self.results: list[tuple[np.ndarray, float]] = []
+
+    @classmethod
+    def for_model(cls, model: Any, **kwargs: Any) -> SkillGridSweepCallback:
+        """The sweep of a method's fine-tuning: as long as the model's random-action phase (``learning_starts``).
+
+        :param model: the model about to be fine-tuned
+        :param kwargs: the other arguments (``window``...)
+        """
+        return cls(sweep_steps=model.learning_starts, **kwargs, verbose=model.verbose)
 
     def _start(self) -> None:
         prior = self.model.skill_prior
@@ -181,8 +199,6 @@ class URLBEvalCallback(EvalCallback, ResumableCallback):
         self.history: list[tuple[int, float, float]] = []
 
     def _init_callback(self) -> None:
-        from sb3_cic.ddpg import prepare_env
-
         if self.model.skill_prior is not None and not self.eval_env.env_is_wrapped(SkillObservationWrapper)[0]:
             env = prepare_env(self._raw_eval_env, self.model.skill_prior, self.model.skill_resample_every)
             self.eval_env = DummyVecEnv([lambda: env])

@@ -113,7 +113,7 @@ def finetune(argv: Sequence[str]) -> Path | None:
 
     from huggingface_sb3 import EnvironmentName
     from rl_zoo3.utils import get_latest_run_id
-    from sb3_cic.ddpg import read_saved_data
+    from sb3_cic.common.save_util import read_saved_data
 
     algos = zoo.register_algos()
     args, algo, env_id, log_folder = _zoo_args(argv, finetune=True)

@@ -24,8 +24,8 @@ from pathlib import Path
 from typing import Any
 
 from sb3_cic import CIC, URLBDDPG, URLBEvalCallback
+from sb3_cic.common.save_util import read_saved_data
 from sb3_cic.constants import EXPERT_SCORES
-from sb3_cic.ddpg import read_saved_data
 from sb3_cic.protocol import evaluation_callback
 
 #: the shipped snapshot: CIC pre-trained reward-free on URLB/walker-v0, hidden 256, batch 256, 100k steps

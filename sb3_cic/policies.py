@@ -24,6 +24,7 @@ from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 from stable_baselines3.td3.policies import TD3Policy
 from torch import nn
 
+from sb3_cic.common.arguments import check_positive_int
 from sb3_cic.speed import FusedAdam, LeanSequential, speed_options
 
 
@@ -50,13 +51,6 @@ def hidden_dim_from_net_arch(net_arch: list[int] | dict[str, list[int]]) -> int:
             "give policy_kwargs=dict(hidden_dim=h) (or net_arch=[h, h])"
         )
     return int(layers[0])
-
-
-def check_positive_int(name: str, value: int) -> int:
-    """Return ``value``, or raise a ``ValueError`` naming the argument when it is not an int >= 1."""
-    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-        raise ValueError(f"{name} must be an int >= 1, got {value!r}")
-    return value
 
 
 def min_q(qs: tuple[th.Tensor, ...]) -> th.Tensor:
@@ -294,3 +288,19 @@ class URLBPolicy(TD3Policy):
 
 
 MlpPolicy = URLBPolicy
+
+
+def normalize_policy_kwargs(policy_kwargs: dict[str, Any] | None) -> dict[str, Any]:
+    """``policy_kwargs`` in the form a model saves: SB3's ``net_arch`` as ``hidden_dim``, ``n_critics`` set (2).
+
+    :param policy_kwargs: the user's policy arguments
+    """
+    policy_kwargs = dict(policy_kwargs or {})
+    if "net_arch" in policy_kwargs:  # SB3's form of the width
+        width = hidden_dim_from_net_arch(policy_kwargs.pop("net_arch"))
+        if policy_kwargs.setdefault("hidden_dim", width) != width:
+            raise ValueError(f"net_arch says width {width}, hidden_dim {policy_kwargs['hidden_dim']}: give one of them")
+    if "hidden_dim" in policy_kwargs:
+        check_positive_int("hidden_dim", policy_kwargs["hidden_dim"])
+    policy_kwargs.setdefault("n_critics", 2)  # URLB's twin critic (SB3's DDPG would set 1)
+    return policy_kwargs

@@ -1,18 +1,9 @@
 """The URLB protocol: pre-train a method once on a domain, fine-tune it on the domain's tasks over seeds.
 
-One study lives in one folder::
-
-    <study>/study.json                      the settings the study was made with (a command with others is refused)
-    <study>/pretrain/<method>_<domain>/snapshot_<steps>.zip, result.json
-    <study>/finetune/<label>/<task>/seed_<k>/eval.csv, result.json
-    <study>/tensorboard/...
-
-and, in a run folder while the run is unfinished, ``checkpoint.zip`` and ``progress.json`` (``error.txt``
-if it raised): every run checkpoints itself at an episode boundary every ``checkpoint_every`` steps and,
-started again, resumes from its last checkpoint (:mod:`sb3_cic.study.checkpoint`).
-
-``<label>`` is the method name when fine-tuning from the final snapshot, ``<method>@<steps>`` from
-another snapshot; DDPG ("from scratch") has no pre-training. A run whose ``result.json`` exists is
+One study lives in one folder, laid out as :mod:`sb3_cic.study.layout` says (``study.json``, ``pretrain/``,
+``finetune/``, ``tensorboard/``; a command with other settings than ``study.json``'s is refused). Every run
+checkpoints itself at an episode boundary every ``checkpoint_every`` steps and, started again, resumes from
+its last checkpoint (:mod:`sb3_cic.study.checkpoint`). DDPG ("from scratch") has no pre-training. A run whose ``result.json`` exists is
 not run again; an unfinished one resumes. Hyperparameters come from ``zoo_configs/<method>.yml`` (read with rl_zoo3, see
 :func:`sb3_cic.zoo.zoo_hyperparams`), with the small-scale options of :class:`Settings` on top.
 Evaluation: :class:`~sb3_cic.callbacks.URLBEvalCallback` (deterministic episodes at step 0 and every
@@ -28,7 +19,6 @@ import csv
 import json
 import math
 import time
-import zipfile
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar, Sequence
@@ -41,9 +31,21 @@ from stable_baselines3.common.utils import set_random_seed
 
 from envs.tasks import DOMAIN_TASKS
 from sb3_cic import zoo
-from sb3_cic.callbacks import SkillGridSweepCallback, SkillSelectionCallback, URLBEvalCallback
+from sb3_cic.callbacks import SkillGridSweepCallback, URLBEvalCallback
+from sb3_cic.common.resumable import ResumableCallback
 from sb3_cic.constants import EXPERT_SCORES
-from sb3_cic.study.checkpoint import ResumableCallback, RunCheckpointCallback, RunFolder, write_json
+from sb3_cic.finetune import finetune_callbacks
+from sb3_cic.study.checkpoint import RunCheckpointCallback, RunFolder, write_json
+from sb3_cic.study.graph import build_graph, record_runs
+from sb3_cic.study.layout import (
+    check_snapshot,
+    finetune_dir,
+    pretrain_dir,
+    run_label,
+    snapshot_file,
+    task_env_id,
+    task_name,
+)
 
 #: URLB's pre-training snapshots
 DEFAULT_SNAPSHOTS: tuple[int, ...] = (100_000, 500_000, 1_000_000, 2_000_000)
@@ -134,41 +136,6 @@ class FinetuneResult:
     hyperparams: dict[str, str] = field(default_factory=dict)
 
 
-def task_name(domain: str, task: str) -> str:
-    """URLB task name (``walker_flip``) of a domain and task."""
-    return task if task.startswith(f"{domain}_") else f"{domain}_{task}"
-
-
-def task_env_id(domain: str, task: str) -> str:
-    """Gymnasium id of a task (``URLB/walker-flip-v0``)."""
-    short = task[len(domain) + 1 :] if task.startswith(f"{domain}_") else task
-    if short not in DOMAIN_TASKS[domain]:
-        raise ValueError(f"unknown task {task!r} of {domain}; known: {DOMAIN_TASKS[domain]}")
-    return f"URLB/{domain}-{short}-v0"
-
-
-def pretrain_dir(study: str | Path, method: str, domain: str) -> Path:
-    """Folder of the pre-training of ``method`` on ``domain``."""
-    return Path(study) / "pretrain" / f"{method}_{domain}"
-
-
-def finetune_dir(study: str | Path, label: str, task: str, seed: int) -> Path:
-    """Folder of a fine-tuning run (``task``: the URLB task name, ``walker_flip``)."""
-    return Path(study) / "finetune" / label / task / f"seed_{seed}"
-
-
-def check_snapshot(path: Path) -> None:
-    """``ValueError`` unless ``path`` is a readable saved model (a zip with SB3's ``data``, CRCs intact)."""
-    if not path.is_file():
-        raise ValueError(f"the snapshot {path} is missing (its pre-training's result.json lists it)")
-    try:
-        with zipfile.ZipFile(path) as archive:
-            if "data" not in archive.namelist() or archive.testzip() is not None:
-                raise zipfile.BadZipFile("no readable 'data' entry")
-    except (OSError, zipfile.BadZipFile) as error:
-        raise ValueError(f"the snapshot {path} is corrupt ({error!r}); pre-train again in a new study folder") from error
-
-
 def check_study_settings(study: str | Path, settings: Settings, pretrain_seed: int) -> dict[str, Any]:
     """The content of ``<study>/study.json`` for these settings; ``ValueError`` if the folder holds another.
 
@@ -236,7 +203,7 @@ class SnapshotCallback(ResumableCallback):
     def _on_step(self) -> bool:
         while self.pending and self.num_timesteps >= self.pending[0]:
             step = self.pending.pop(0)
-            path = self.save_path / f"snapshot_{step}.zip"
+            path = snapshot_file(self.save_path, step)
             self.model.save(path)
             self.saved[step] = path.name
             if self.verbose:
@@ -373,19 +340,18 @@ def finetune(
     pre: dict[str, Any] | None = None
     label = method
     if not from_scratch:
-        pre_file = Path(study) / "pretrain" / f"{method}_{domain}" / "result.json"
+        pre_file = pretrain_dir(study, method, domain) / "result.json"
         if not pre_file.exists():
             raise FileNotFoundError(f"pre-train {method} on {domain} first ({pre_file} is missing)")
         pre = json.loads(pre_file.read_text())
         snapshot = int(pre["steps"]) if snapshot is None else int(snapshot)
         if str(snapshot) not in {str(k) for k in pre["snapshots"]}:
             raise ValueError(f"no snapshot at {snapshot} steps; saved: {sorted(int(k) for k in pre['snapshots'])}")
-        if snapshot != int(pre["steps"]):
-            label = f"{method}@{snapshot}"
+        label = run_label(method, None if snapshot == int(pre["steps"]) else snapshot)
     folder = RunFolder(finetune_dir(study, label, name, seed))
     if folder.done:
         return json.loads(folder.result.read_text())
-    snapshot_path = pretrain_dir(study, method, domain) / f"snapshot_{snapshot}.zip"
+    snapshot_path = snapshot_file(pretrain_dir(study, method, domain), snapshot)
     if not from_scratch:
         check_snapshot(snapshot_path)
     checkpoint = folder.read_meta()  # a ValueError for a corrupt or missing checkpoint, before any work
@@ -408,9 +374,7 @@ def finetune(
     else:
         kwargs = {k: v for k, v in hyperparams.items() if k not in ("policy", "policy_kwargs")}
         model = cls.load_pretrained(snapshot_path, env_id, seed=seed, **common, **kwargs)
-    if model.skill_prior is not None and not any(isinstance(c, SkillSelectionCallback) for c in callbacks):
-        selection = model.make_finetune_callback()  # what learn() would add; kept here to record the sweep
-        callbacks = callbacks if selection is None else [selection, *callbacks]
+    callbacks = finetune_callbacks(model, callbacks)  # what learn() would add; kept here to record the sweep
     for callback in callbacks:  # the sweep lasts learning_starts steps (also when the yaml sets neither)
         if isinstance(callback, SkillGridSweepCallback):
             callback.sweep_steps = model.learning_starts
@@ -495,8 +459,6 @@ def run_protocol(
         task_env_id(domain, task)  # a ValueError for an unknown task
     record_study_settings(study, settings, pretrain_seed)
     if snapshot is None and from_scratch != zoo.has_reward_module(cls):  # the study's layout: listed for ``status``
-        from sb3_cic.study.graph import build_graph, record_runs
-
         record_runs(study, build_graph([method], [domain], tasks, seeds, pretrain_seed))
     if not from_scratch:
         pretrain(study, method, domain, settings, seed=pretrain_seed, config=config)

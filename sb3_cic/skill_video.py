@@ -22,7 +22,8 @@ import gymnasium as gym
 import numpy as np
 
 from envs import SkillObservationWrapper
-from sb3_cic.ddpg import URLBDDPG, read_saved_data
+from sb3_cic.common.save_util import read_saved_data
+from sb3_cic.ddpg import URLBDDPG
 
 
 def load_snapshot(path: str | Path, device: str = "cpu") -> URLBDDPG:

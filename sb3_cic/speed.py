@@ -22,6 +22,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass, fields
 from typing import Any, Callable
 
+import numpy as np
 import torch as th
 from torch import nn
 from torch.nn.modules import module as torch_module
@@ -196,3 +197,26 @@ class LeanSequential(nn.Sequential):
             else:
                 x = layer(x)  # type: ignore[misc]
         return x
+
+
+def lean_action(policy: Any, observation: np.ndarray, action_noise: Callable[[], np.ndarray] | None = None) -> tuple[
+    np.ndarray, np.ndarray
+]:
+    """SB3's exploration action of ``policy`` on ``observation`` in one forward pass of the actor (``lean_acting``).
+
+    SB3's ``predict`` checks, converts and reshapes the observation and switches the networks to evaluation mode
+    at every env step; URLB's actor has no layer that acts differently in training mode. The same float32 input,
+    the same rescaling (SB3's round trip, kept for the same numbers), the same noise: the same action.
+
+    :param policy: the model's policy (``actor``, ``scale_action``, ``unscale_action``)
+    :param observation: the pending observations, ``(n_envs, obs_dim)``
+    :param action_noise: SB3's action noise (None: none)
+    :return: ``(action, buffer_action)`` as ``OffPolicyAlgorithm._sample_action`` returns them
+    """
+    with th.no_grad():
+        mu = policy.actor(th.as_tensor(observation, device=policy.device).float())
+    unscaled_action = policy.unscale_action(mu.cpu().numpy().reshape((-1, *policy.action_space.shape)))
+    scaled_action = policy.scale_action(unscaled_action)
+    if action_noise is not None:
+        scaled_action = np.clip(scaled_action + action_noise(), -1, 1)
+    return policy.unscale_action(scaled_action), scaled_action

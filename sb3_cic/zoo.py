@@ -68,7 +68,7 @@ def get_algo(name: str) -> type[URLBDDPG]:
 
 def has_reward_module(cls: type[URLBDDPG]) -> bool:
     """Whether ``cls`` is an unsupervised method (it defines an intrinsic reward), i.e. is pre-trained."""
-    return cls._make_reward_module is not URLBDDPG._make_reward_module
+    return cls.reward_module_class is not None
 
 
 def register_algos() -> dict[str, Any]:

@@ -6,7 +6,7 @@ import pytest
 
 import sb3_cic  # noqa: F401
 from sb3_cic import CIC, demo
-from sb3_cic.ddpg import read_saved_data
+from sb3_cic.common.save_util import read_saved_data
 
 
 def test_shipped_snapshot_is_a_hidden_256_cic_walker():

@@ -7,7 +7,6 @@ from typing import Any, ClassVar
 
 import numpy as np
 import torch as th
-from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv
 
@@ -76,6 +75,17 @@ class APSRegressionCallback(SkillSelectionCallback):
         #: transitions used by the last regression
         self.n_samples = 0
 
+    @classmethod
+    def for_model(cls, model: Any, **kwargs: Any) -> APSRegressionCallback:
+        """The regression of APS's fine-tuning, with the model's ``regression_step`` and ``regression_max_samples``
+        (None: this class's defaults).
+
+        :param model: the APS model about to be fine-tuned
+        :param kwargs: other arguments
+        """
+        given = {"regression_step": model.regression_step, "max_samples": model.regression_max_samples}
+        return cls(**{k: v for k, v in given.items() if v is not None}, **kwargs, verbose=model.verbose)
+
     def _start(self) -> None:
         assert self.model.env is not None
         self.model.env.env_method("set_fixed", False)
@@ -128,15 +138,15 @@ class APS(URLBDDPG):
 
     :param policy: policy (``"MlpPolicy"``: :class:`APSPolicy`)
     :param env: environment id, environment or VecEnv (wrapped with the skill wrapper if needed)
-    :param sf_dim: size of ``phi``, ``psi`` and ``w`` (10)
-    :param aps_hidden_dim: hidden width of ``phi`` (default: the policy's, 1024)
-    :param aps_lr: learning rate of ``phi`` (1e-4)
-    :param knn_k: neighbours of the particle estimator (12)
-    :param knn_clip: clip of the particle estimator (1e-4)
-    :param knn_avg: average the k distances (True)
-    :param knn_rms: divide by the running mean of the distances (True)
-    :param regression_step: fine-tuning step of the task regression (4,096)
-    :param regression_max_samples: most transitions used by the regression (100,000)
+    :param sf_dim: size of ``phi``, ``psi`` and ``w`` (default: SphereSkillPrior's)
+    :param aps_hidden_dim: hidden width of ``phi`` (default: the policy's)
+    :param aps_lr: learning rate of ``phi`` (default: APSReward's)
+    :param knn_k: neighbours of the particle estimator (default: APSReward's)
+    :param knn_clip: clip of the particle estimator (default: APSReward's)
+    :param knn_avg: average the k distances (default: APSReward's)
+    :param knn_rms: divide by the running mean of the distances (default: APSReward's)
+    :param regression_step: fine-tuning step of the task regression (default: APSRegressionCallback's)
+    :param regression_max_samples: most transitions used by the regression (default: APSRegressionCallback's)
     :param skill_resample_every: task-vector resampling period (5)
     :param policy_kwargs: policy arguments (``hidden_dim``); ``output_dim`` is set to ``sf_dim``
     :param kwargs: arguments of :class:`URLBDDPG` (``batch_size``...)
@@ -144,51 +154,36 @@ class APS(URLBDDPG):
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"MlpPolicy": APSPolicy}  # type: ignore[assignment]
 
+    # the method ---------------------------------------------------------------------------------
+    skill_prior_class = SphereSkillPrior
+    reward_module_class = APSReward
+    reward_module_args: ClassVar[dict[str, str]] = {
+        "aps_hidden_dim": "hidden_dim",
+        "aps_lr": "lr",
+        "knn_k": "knn_k",
+        "knn_clip": "knn_clip",
+        "knn_avg": "knn_avg",
+        "knn_rms": "knn_rms",
+    }
+    finetune_skill_choices: ClassVar[dict[str, Any]] = {"regression": (APSRegressionCallback, {})}
+    finetune_critic: ClassVar[str] = "trunk"
+
     def __init__(
         self,
         policy: str | type,
         env: GymEnv | str,
-        sf_dim: int = 10,
-        aps_hidden_dim: int | None = None,
-        aps_lr: float = 1e-4,
-        knn_k: int = 12,
-        knn_clip: float = 1e-4,
-        knn_avg: bool = True,
-        knn_rms: bool = True,
-        regression_step: int = 4096,
-        regression_max_samples: int = 100_000,
+        sf_dim: int | None = None,
         skill_resample_every: int | None = 5,
-        policy_kwargs: dict[str, Any] | None = None,
+        regression_step: int | None = None,
+        regression_max_samples: int | None = None,
         **kwargs: Any,
     ) -> None:
         if isinstance(policy, type) and not issubclass(policy, APSPolicy):
             raise ValueError(f"APS needs an APSPolicy (successor-feature critic), got {policy.__name__}")
-        self.aps_hidden_dim = aps_hidden_dim
-        self.aps_lr = aps_lr
-        self.knn_k = knn_k
-        self.knn_clip = knn_clip
-        self.knn_avg = knn_avg
-        self.knn_rms = knn_rms
         self.regression_step = regression_step
         self.regression_max_samples = regression_max_samples
-        prior = SphereSkillPrior(sf_dim)
-        policy_kwargs = {**(policy_kwargs or {}), "output_dim": sf_dim}
-        super().__init__(
-            policy, env, skill_prior=prior, skill_resample_every=skill_resample_every, policy_kwargs=policy_kwargs, **kwargs
-        )
+        super().__init__(policy, env, skill_dim=sf_dim, skill_resample_every=skill_resample_every, **kwargs)
 
-    def _make_reward_module(self) -> APSReward:
-        return APSReward(
-            self.state_dim,
-            self.action_dim,
-            skill_dim=self.skill_dim,
-            hidden_dim=self.aps_hidden_dim or self.hidden_dim,
-            lr=self.aps_lr,
-            knn_k=self.knn_k,
-            knn_clip=self.knn_clip,
-            knn_avg=self.knn_avg,
-            knn_rms=self.knn_rms,
-        )
-
-    def make_finetune_callback(self) -> BaseCallback:
-        return APSRegressionCallback(self.regression_step, self.regression_max_samples, verbose=self.verbose)
+    def _setup_model(self) -> None:
+        self.policy_kwargs = {**self.policy_kwargs, "output_dim": self.skill_dim}  # the critic's psi has w's size
+        super()._setup_model()

@@ -2,14 +2,14 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, ClassVar
 
-from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.type_aliases import GymEnv
 
 from sb3_cic.callbacks import FixedSkillCallback, SkillGridSweepCallback
+from sb3_cic.common.arguments import parameter_default
 from sb3_cic.ddpg import URLBDDPG
-from sb3_cic.rewards.cic import CICReward, check_variant
+from sb3_cic.rewards.cic import CICReward
 from sb3_cic.skills import UniformSkillPrior
 
 
@@ -32,64 +32,39 @@ class CIC(URLBDDPG):
 
     :param policy: policy (``"MlpPolicy"``)
     :param env: environment id, environment or VecEnv (wrapped with the skill wrapper if needed)
-    :param skill_dim: skill size (64)
-    :param cic_hidden_dim: hidden width of state_net, pred_net, skill_net (default: the policy's, 1024)
+    :param skill_dim: skill size (default: UniformSkillPrior's)
+    :param cic_hidden_dim: hidden width of state_net, pred_net, skill_net (default: the policy's)
     :param cic_embed_dim: output size of those networks (default: ``skill_dim``, as the CIC code;
         give e.g. 16 with ``skill_dim`` 1, whose normalised 1-d embeddings carry no information)
-    :param cic_lr: learning rate of the discriminator (1e-4)
-    :param temperature: contrastive temperature (0.5)
-    :param knn_k: neighbours of the particle estimator (default 12; 16 with ``cic_variant="code"``)
-    :param knn_clip: clip of the particle estimator (0.0005)
-    :param finetune_skill_choice: "sweep" (paper) or "fixed" (0.5, reference code)
-    :param cic_variant: "paper" or "code" (the reference code's loss, reward normalisation and k; see above)
+    :param cic_lr: learning rate of the discriminator (default: CICReward's)
+    :param temperature: contrastive temperature (default: CICReward's)
+    :param knn_k: neighbours of the particle estimator (default: CICReward's, which depends on ``cic_variant``)
+    :param knn_clip: clip of the particle estimator (default: CICReward's)
+    :param finetune_skill_choice: "sweep" (paper, the default) or "fixed" (0.5, reference code)
+    :param skill_resample_every: skill resampling period (50)
+    :param cic_variant: "paper" (the default) or "code" (the reference code's loss, reward normalisation and k; see above)
     :param kwargs: arguments of :class:`URLBDDPG` (``batch_size``, ``policy_kwargs``...)
     """
 
-    def __init__(
-        self,
-        policy: str | type,
-        env: GymEnv | str,
-        skill_dim: int = 64,
-        cic_hidden_dim: int | None = None,
-        cic_embed_dim: int | None = None,
-        cic_lr: float = 1e-4,
-        temperature: float = 0.5,
-        knn_k: int | None = None,
-        knn_clip: float = 0.0005,
-        finetune_skill_choice: str = "sweep",
-        skill_resample_every: int | None = 50,
-        cic_variant: str = "paper",
-        **kwargs: Any,
-    ) -> None:
-        if finetune_skill_choice not in ("sweep", "fixed"):
-            raise ValueError(f"finetune_skill_choice must be 'sweep' or 'fixed', got {finetune_skill_choice!r}")
-        check_variant(cic_variant)  # before the default k is chosen from it
-        self.cic_variant = cic_variant
-        self.cic_hidden_dim = cic_hidden_dim
-        self.cic_embed_dim = cic_embed_dim
-        self.cic_lr = cic_lr
-        self.temperature = temperature
-        self.knn_k = knn_k if knn_k is not None else (12 if cic_variant == "paper" else 16)
-        self.knn_clip = knn_clip
-        self.finetune_skill_choice = finetune_skill_choice
-        prior = UniformSkillPrior(skill_dim)
-        super().__init__(policy, env, skill_prior=prior, skill_resample_every=skill_resample_every, **kwargs)
+    # the method ---------------------------------------------------------------------------------
+    skill_prior_class = UniformSkillPrior
+    reward_module_class = CICReward
+    reward_module_args: ClassVar[dict[str, str]] = {
+        "cic_hidden_dim": "hidden_dim",
+        "cic_embed_dim": "embed_dim",
+        "cic_lr": "lr",
+        "temperature": "temperature",
+        "knn_k": "knn_k",
+        "knn_clip": "knn_clip",
+        "cic_variant": "variant",
+    }
+    finetune_skill_choices: ClassVar[dict[str, Any]] = {
+        "sweep": (SkillGridSweepCallback, {"window": 100}),
+        "fixed": (FixedSkillCallback, {"value": 0.5}),
+    }
+    finetune_critic: ClassVar[str] = "trunk"
 
-    def _make_reward_module(self) -> CICReward:
-        return CICReward(
-            self.state_dim,
-            self.action_dim,
-            skill_dim=self.skill_dim,
-            hidden_dim=self.cic_hidden_dim or self.hidden_dim,
-            embed_dim=self.cic_embed_dim,
-            lr=self.cic_lr,
-            temperature=self.temperature,
-            knn_k=self.knn_k,
-            knn_clip=self.knn_clip,
-            variant=self.cic_variant,
-        )
-
-    def make_finetune_callback(self) -> BaseCallback:
-        if self.finetune_skill_choice == "fixed":
-            return FixedSkillCallback(0.5, verbose=self.verbose)
-        return SkillGridSweepCallback(sweep_steps=self.learning_starts, window=100, verbose=self.verbose)
+    def __init__(self, policy: str | type, env: GymEnv | str, **kwargs: Any) -> None:
+        if kwargs.get("knn_k") is None:  # the variant's (a ValueError for an unknown variant, before anything is built)
+            kwargs["knn_k"] = CICReward.default_knn_k(kwargs.get("cic_variant") or parameter_default(CICReward, "variant"))
+        super().__init__(policy, env, **kwargs)

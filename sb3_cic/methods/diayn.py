@@ -2,10 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Any
-
-from stable_baselines3.common.callbacks import BaseCallback
-from stable_baselines3.common.type_aliases import GymEnv
+from typing import Any, ClassVar
 
 from sb3_cic.callbacks import SkillGridSweepCallback
 from sb3_cic.ddpg import URLBDDPG
@@ -28,39 +25,20 @@ class DIAYN(URLBDDPG):
     :param policy: policy (``"MlpPolicy"``)
     :param env: environment id, environment or VecEnv (wrapped with the skill wrapper if needed)
     :param skill_dim: number of skills (16)
-    :param diayn_hidden_dim: hidden width of the discriminator (default: the policy's, 1024)
-    :param diayn_lr: learning rate of the discriminator (1e-4)
-    :param diayn_scale: reward scale (1)
+    :param diayn_hidden_dim: hidden width of the discriminator (default: the policy's)
+    :param diayn_lr: learning rate of the discriminator (default: DIAYNReward's)
+    :param diayn_scale: reward scale (default: DIAYNReward's)
     :param skill_resample_every: skill resampling period (50)
     :param kwargs: arguments of :class:`URLBDDPG` (``batch_size``, ``policy_kwargs``...)
     """
 
-    def __init__(
-        self,
-        policy: str | type,
-        env: GymEnv | str,
-        skill_dim: int = 16,
-        diayn_hidden_dim: int | None = None,
-        diayn_lr: float = 1e-4,
-        diayn_scale: float = 1.0,
-        skill_resample_every: int | None = 50,
-        **kwargs: Any,
-    ) -> None:
-        self.diayn_hidden_dim = diayn_hidden_dim
-        self.diayn_lr = diayn_lr
-        self.diayn_scale = diayn_scale
-        prior = OneHotSkillPrior(skill_dim)
-        super().__init__(policy, env, skill_prior=prior, skill_resample_every=skill_resample_every, **kwargs)
-
-    def _make_reward_module(self) -> DIAYNReward:
-        return DIAYNReward(
-            self.state_dim,
-            self.action_dim,
-            skill_dim=self.skill_dim,
-            hidden_dim=self.diayn_hidden_dim or self.hidden_dim,
-            lr=self.diayn_lr,
-            scale=self.diayn_scale,
-        )
-
-    def make_finetune_callback(self) -> BaseCallback:
-        return SkillGridSweepCallback(sweep_steps=self.learning_starts, window=None, verbose=self.verbose)
+    # the method ---------------------------------------------------------------------------------
+    skill_prior_class = OneHotSkillPrior
+    reward_module_class = DIAYNReward
+    reward_module_args: ClassVar[dict[str, str]] = {
+        "diayn_hidden_dim": "hidden_dim",
+        "diayn_lr": "lr",
+        "diayn_scale": "scale",
+    }
+    finetune_skill_choices: ClassVar[dict[str, Any]] = {"sweep": (SkillGridSweepCallback, {"window": None})}
+    finetune_critic: ClassVar[str] = "trunk"

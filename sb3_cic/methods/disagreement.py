@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Any
-
-from stable_baselines3.common.type_aliases import GymEnv
+from typing import Any, ClassVar
 
 from sb3_cic.ddpg import URLBDDPG
 from sb3_cic.rewards.disagreement import DisagreementReward
@@ -20,31 +18,19 @@ class Disagreement(URLBDDPG):
 
     :param policy: policy (``"MlpPolicy"``)
     :param env: environment id, environment or VecEnv
-    :param disagreement_hidden_dim: hidden width of each forward model (default: the policy's, 1024)
-    :param disagreement_lr: learning rate of the ensemble (1e-4)
-    :param n_models: ensemble size (5)
+    :param disagreement_hidden_dim: hidden width of each forward model (default: the policy's)
+    :param disagreement_lr: learning rate of the ensemble (default: DisagreementReward's)
+    :param n_models: ensemble size (default: DisagreementReward's)
     :param kwargs: arguments of :class:`URLBDDPG` (``batch_size``, ``policy_kwargs``...)
     """
 
-    def __init__(
-        self,
-        policy: str | type,
-        env: GymEnv | str,
-        disagreement_hidden_dim: int | None = None,
-        disagreement_lr: float = 1e-4,
-        n_models: int = 5,
-        **kwargs: Any,
-    ) -> None:
-        self.disagreement_hidden_dim = disagreement_hidden_dim
-        self.disagreement_lr = disagreement_lr
-        self.n_models = n_models
-        super().__init__(policy, env, **kwargs)
-
-    def _make_reward_module(self) -> DisagreementReward:
-        return DisagreementReward(
-            self.state_dim,
-            self.action_dim,
-            hidden_dim=self.disagreement_hidden_dim or self.hidden_dim,
-            n_models=self.n_models,
-            lr=self.disagreement_lr,
-        )
+    # the method ---------------------------------------------------------------------------------
+    skill_prior_class = None
+    reward_module_class = DisagreementReward
+    reward_module_args: ClassVar[dict[str, str]] = {
+        "disagreement_hidden_dim": "hidden_dim",
+        "disagreement_lr": "lr",
+        "n_models": "n_models",
+    }
+    finetune_skill_choices: ClassVar[dict[str, Any]] = {}
+    finetune_critic: ClassVar[str] = "trunk"

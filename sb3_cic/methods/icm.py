@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Any
-
-from stable_baselines3.common.type_aliases import GymEnv
+from typing import Any, ClassVar
 
 from sb3_cic.ddpg import URLBDDPG
 from sb3_cic.rewards.icm import ICMReward
@@ -20,31 +18,19 @@ class ICM(URLBDDPG):
 
     :param policy: policy (``"MlpPolicy"``)
     :param env: environment id, environment or VecEnv
-    :param icm_hidden_dim: hidden width of the forward and inverse models (default: the policy's, 1024)
-    :param icm_lr: learning rate of the models (1e-4)
-    :param icm_scale: factor of the forward error inside the log (1)
+    :param icm_hidden_dim: hidden width of the forward and inverse models (default: the policy's)
+    :param icm_lr: learning rate of the models (default: ICMReward's)
+    :param icm_scale: factor of the forward error inside the log (default: ICMReward's)
     :param kwargs: arguments of :class:`URLBDDPG` (``batch_size``, ``policy_kwargs``...)
     """
 
-    def __init__(
-        self,
-        policy: str | type,
-        env: GymEnv | str,
-        icm_hidden_dim: int | None = None,
-        icm_lr: float = 1e-4,
-        icm_scale: float = 1.0,
-        **kwargs: Any,
-    ) -> None:
-        self.icm_hidden_dim = icm_hidden_dim
-        self.icm_lr = icm_lr
-        self.icm_scale = icm_scale
-        super().__init__(policy, env, **kwargs)
-
-    def _make_reward_module(self) -> ICMReward:
-        return ICMReward(
-            self.state_dim,
-            self.action_dim,
-            hidden_dim=self.icm_hidden_dim or self.hidden_dim,
-            lr=self.icm_lr,
-            scale=self.icm_scale,
-        )
+    # the method ---------------------------------------------------------------------------------
+    skill_prior_class = None
+    reward_module_class = ICMReward
+    reward_module_args: ClassVar[dict[str, str]] = {
+        "icm_hidden_dim": "hidden_dim",
+        "icm_lr": "lr",
+        "icm_scale": "scale",
+    }
+    finetune_skill_choices: ClassVar[dict[str, Any]] = {}
+    finetune_critic: ClassVar[str] = "trunk"

@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Any
-
-from stable_baselines3.common.type_aliases import GymEnv
+from typing import Any, ClassVar
 
 from sb3_cic.ddpg import URLBDDPG
 from sb3_cic.rewards.rnd import RNDReward
@@ -23,35 +21,21 @@ class RND(URLBDDPG):
 
     :param policy: policy (``"MlpPolicy"``)
     :param env: environment id, environment or VecEnv
-    :param rnd_hidden_dim: hidden width of predictor and target (default: the policy's, 1024)
-    :param rnd_rep_dim: output size of predictor and target (512)
-    :param rnd_lr: learning rate of the predictor (1e-4)
-    :param rnd_scale: reward scale (1)
+    :param rnd_hidden_dim: hidden width of predictor and target (default: the policy's)
+    :param rnd_rep_dim: output size of predictor and target (default: RNDReward's)
+    :param rnd_lr: learning rate of the predictor (default: RNDReward's)
+    :param rnd_scale: reward scale (default: RNDReward's)
     :param kwargs: arguments of :class:`URLBDDPG` (``batch_size``, ``policy_kwargs``...)
     """
 
-    def __init__(
-        self,
-        policy: str | type,
-        env: GymEnv | str,
-        rnd_hidden_dim: int | None = None,
-        rnd_rep_dim: int = 512,
-        rnd_lr: float = 1e-4,
-        rnd_scale: float = 1.0,
-        **kwargs: Any,
-    ) -> None:
-        self.rnd_hidden_dim = rnd_hidden_dim
-        self.rnd_rep_dim = rnd_rep_dim
-        self.rnd_lr = rnd_lr
-        self.rnd_scale = rnd_scale
-        super().__init__(policy, env, **kwargs)
-
-    def _make_reward_module(self) -> RNDReward:
-        return RNDReward(
-            self.state_dim,
-            self.action_dim,
-            hidden_dim=self.rnd_hidden_dim or self.hidden_dim,
-            rep_dim=self.rnd_rep_dim,
-            lr=self.rnd_lr,
-            scale=self.rnd_scale,
-        )
+    # the method ---------------------------------------------------------------------------------
+    skill_prior_class = None
+    reward_module_class = RNDReward
+    reward_module_args: ClassVar[dict[str, str]] = {
+        "rnd_hidden_dim": "hidden_dim",
+        "rnd_rep_dim": "rep_dim",
+        "rnd_lr": "lr",
+        "rnd_scale": "scale",
+    }
+    finetune_skill_choices: ClassVar[dict[str, Any]] = {}
+    finetune_critic: ClassVar[str] = "trunk"

@@ -2,9 +2,8 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, ClassVar
 
-from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.type_aliases import GymEnv
 
 from sb3_cic.callbacks import SkillGridSweepCallback
@@ -31,51 +30,31 @@ class SMM(URLBDDPG):
     :param policy: policy (``"MlpPolicy"``)
     :param env: environment id, environment or VecEnv (wrapped with the skill wrapper if needed)
     :param skill_dim: number of skills (4)
-    :param smm_hidden_dim: hidden width of the discriminator (default: the policy's, 1024)
-    :param vae_hidden_dim: hidden width of the VAE (150)
-    :param code_dim: VAE latent size (128)
-    :param vae_lr: learning rate of the VAE (1e-2)
-    :param disc_lr: learning rate of the discriminator (1e-3)
-    :param vae_beta: weight of the VAE's KL term (0.5)
+    :param smm_hidden_dim: hidden width of the discriminator (default: the policy's)
+    :param vae_hidden_dim: hidden width of the VAE (default: SMMReward's)
+    :param code_dim: VAE latent size (default: SMMReward's)
+    :param vae_lr: learning rate of the VAE (default: SMMReward's)
+    :param disc_lr: learning rate of the discriminator (default: SMMReward's)
+    :param vae_beta: weight of the VAE's KL term (default: SMMReward's)
     :param skill_resample_every: skill resampling period (None: once per episode)
     :param kwargs: arguments of :class:`URLBDDPG` (``batch_size``, ``policy_kwargs``...)
     """
 
+    # the method ---------------------------------------------------------------------------------
+    skill_prior_class = OneHotSkillPrior
+    reward_module_class = SMMReward
+    reward_module_args: ClassVar[dict[str, str]] = {
+        "smm_hidden_dim": "hidden_dim",
+        "vae_hidden_dim": "vae_hidden_dim",
+        "code_dim": "code_dim",
+        "vae_lr": "vae_lr",
+        "disc_lr": "disc_lr",
+        "vae_beta": "vae_beta",
+    }
+    finetune_skill_choices: ClassVar[dict[str, Any]] = {"sweep": (SkillGridSweepCallback, {"window": None})}
+    finetune_critic: ClassVar[str] = "trunk"
+
     def __init__(
-        self,
-        policy: str | type,
-        env: GymEnv | str,
-        skill_dim: int = 4,
-        smm_hidden_dim: int | None = None,
-        vae_hidden_dim: int = 150,
-        code_dim: int = 128,
-        vae_lr: float = 1e-2,
-        disc_lr: float = 1e-3,
-        vae_beta: float = 0.5,
-        skill_resample_every: int | None = None,
-        **kwargs: Any,
+        self, policy: str | type, env: GymEnv | str, skill_dim: int = 4, skill_resample_every: int | None = None, **kwargs: Any
     ) -> None:
-        self.smm_hidden_dim = smm_hidden_dim
-        self.vae_hidden_dim = vae_hidden_dim
-        self.code_dim = code_dim
-        self.vae_lr = vae_lr
-        self.disc_lr = disc_lr
-        self.vae_beta = vae_beta
-        prior = OneHotSkillPrior(skill_dim)
-        super().__init__(policy, env, skill_prior=prior, skill_resample_every=skill_resample_every, **kwargs)
-
-    def _make_reward_module(self) -> SMMReward:
-        return SMMReward(
-            self.state_dim,
-            self.action_dim,
-            skill_dim=self.skill_dim,
-            hidden_dim=self.smm_hidden_dim or self.hidden_dim,
-            vae_hidden_dim=self.vae_hidden_dim,
-            code_dim=self.code_dim,
-            vae_lr=self.vae_lr,
-            disc_lr=self.disc_lr,
-            vae_beta=self.vae_beta,
-        )
-
-    def make_finetune_callback(self) -> BaseCallback:
-        return SkillGridSweepCallback(sweep_steps=self.learning_starts, window=None, verbose=self.verbose)
+        super().__init__(policy, env, skill_dim=skill_dim, skill_resample_every=skill_resample_every, **kwargs)

@@ -15,6 +15,8 @@ from sb3_cic.rewards.particle import ParticleEntropy
 
 #: the CIC loss and reward variants (see :class:`CICReward`)
 CIC_VARIANTS = ("paper", "code")
+#: the default number of neighbours of each variant: the paper's k, the reference code's
+KNN_K = {"paper": 12, "code": 16}
 
 
 def check_variant(variant: str) -> None:
@@ -49,7 +51,7 @@ class CICReward(RewardModule):
         the normalised embeddings would be +-1 and carry no information, so give more, e.g. 16)
     :param lr: Adam learning rate (1e-4)
     :param temperature: contrastive temperature (0.5)
-    :param knn_k: neighbours of the entropy estimator (12)
+    :param knn_k: neighbours of the entropy estimator (default: the variant's, :data:`KNN_K`)
     :param knn_clip: clip of the entropy estimator (0.0005)
     :param knn_avg: average the k distances
     :param knn_rms: divide by the running mean (variant "code": variance) of the distances
@@ -65,7 +67,7 @@ class CICReward(RewardModule):
         embed_dim: int | None = None,
         lr: float = 1e-4,
         temperature: float = 0.5,
-        knn_k: int = 12,
+        knn_k: int | None = None,
         knn_clip: float = 0.0005,
         knn_avg: bool = True,
         knn_rms: bool = True,
@@ -81,8 +83,18 @@ class CICReward(RewardModule):
         self.skill_net = mlp(skill_dim, hidden_dim, embed_dim)
         self.apply(orthogonal_init)  # orthogonal weights, zero biases, as the CIC code
         divide_by = "mean" if variant == "paper" else "var"
+        knn_k = self.default_knn_k(variant) if knn_k is None else knn_k
         self.particle = ParticleEntropy(k=knn_k, avg=knn_avg, rms=knn_rms, clip=knn_clip, divide_by=divide_by)
         self.make_optimizer()
+
+    @staticmethod
+    def default_knn_k(variant: str) -> int:
+        """The number of neighbours of ``variant`` (:data:`KNN_K`); ``ValueError`` for an unknown variant.
+
+        :param variant: "paper" or "code"
+        """
+        check_variant(variant)
+        return KNN_K[variant]
 
     def logits(self, query: th.Tensor, key: th.Tensor) -> th.Tensor:
         """The discriminator's ``(B, B)`` logits: cosine similarities of queries and keys over the temperature."""

@@ -7,6 +7,8 @@
   pre-training, checked against the study folder before anything runs.
 * the **engine** runs the graph as Ray tasks with their resources and ``max_retries``.
 
+The study's folder layout (which folder holds which run) is :mod:`.layout`, read by the runs and the graph.
+
 :mod:`.cli` holds ``sb3-cic study`` and ``sb3-cic status``.
 
 Nothing is imported here, so that the run code (``sb3_cic.protocol``) can import :mod:`.checkpoint`

@@ -12,7 +12,8 @@ The checkpoint is a zip (stored, not compressed) of ``meta.json`` (step, elapsed
 (SB3's ``save``: networks, optimisers, reward module, counters, last observation, action noise),
 ``replay_buffer.pkl`` (SB3's ``save_replay_buffer``) and ``state.pkl``: what SB3 does not save, namely the
 random states (Python, numpy, torch, the model's spaces), the environments' states (each env's episode
-start, the skill wrappers' schedules) and the callbacks' states (:class:`ResumableCallback`).
+start, the skill wrappers' schedules) and the callbacks' states
+(:class:`~sb3_cic.common.resumable.ResumableCallback`).
 """
 
 from __future__ import annotations
@@ -28,13 +29,14 @@ import zipfile
 from pathlib import Path
 from typing import Any, Sequence
 
-import gymnasium as gym
 import numpy as np
 import torch as th
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.type_aliases import GymEnv
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecEnvWrapper
+
+from sb3_cic.common.resumable import ResumableCallback, env_layers, env_state, has_method, set_env_state
 
 #: version of the checkpoint's content
 CHECKPOINT_FORMAT = 1
@@ -137,7 +139,8 @@ class RunFolder:
         """Write the checkpoint (temporary file + rename) and record its step; return its size in bytes.
 
         :param model: the model, at an episode boundary of its (single) training env
-        :param callbacks: the callbacks whose state is saved (:class:`ResumableCallback` or any, for ``n_calls``)
+        :param callbacks: the callbacks whose state is saved (any: ``n_calls``; a
+            :class:`~sb3_cic.common.resumable.ResumableCallback`: its own state too)
         :param meta: extra entries of ``meta.json``
         """
         meta = {**meta, "format": CHECKPOINT_FORMAT, "step": int(model.num_timesteps)}
@@ -226,42 +229,6 @@ def set_rng_state(model: BaseAlgorithm, state: dict[str, Any]) -> None:
 
 
 # environments --------------------------------------------------------------------------------
-def _has(obj: Any, name: str) -> bool:
-    # looked up on the class: gymnasium wrappers do not forward attributes, but be explicit
-    return callable(getattr(type(obj), name, None))
-
-
-def _layers(env: gym.Env) -> list[gym.Env]:
-    layers = [env]
-    while isinstance(env, gym.Wrapper):
-        env = env.env
-        layers.append(env)
-    return layers
-
-
-def env_state(env: gym.Env) -> list[Any]:
-    """The checkpoint state of each layer of ``env`` (its ``get_checkpoint_state``, None for a layer without).
-
-    Taken just after a reset: :class:`~envs.dmc.DMCEnv` saves the random state its episode started from.
-
-    :param env: a gymnasium env and its wrappers
-    """
-    return [layer.get_checkpoint_state() if _has(layer, "get_checkpoint_state") else None for layer in _layers(env)]
-
-
-def set_env_state(env: gym.Env, state: list[Any]) -> list[Any]:
-    """Reset ``env`` (the wrappers' bookkeeping), then restore each layer's state; return what the layers returned.
-
-    :param env: an env built as the one :func:`env_state` read
-    :param state: what :func:`env_state` returned
-    """
-    layers = _layers(env)
-    if len(layers) != len(state):
-        raise ValueError(f"the env has {len(layers)} layers, the checkpoint {len(state)}: not the same env")
-    env.reset()
-    return [layer.set_checkpoint_state(saved) for layer, saved in zip(layers, state) if saved is not None]
-
-
 def _vec_layers(venv: VecEnv) -> tuple[list[VecEnvWrapper], DummyVecEnv]:
     wrappers = []
     while isinstance(venv, VecEnvWrapper):
@@ -280,7 +247,7 @@ def vec_env_state(venv: VecEnv | None) -> dict[str, Any]:
     assert venv is not None
     wrappers, dummy = _vec_layers(venv)
     return {
-        "wrappers": [w.get_checkpoint_state() if _has(w, "get_checkpoint_state") else None for w in wrappers],
+        "wrappers": [w.get_checkpoint_state() if has_method(w, "get_checkpoint_state") else None for w in wrappers],
         "envs": [env_state(env) for env in dummy.envs],
     }
 
@@ -307,28 +274,9 @@ def set_vec_env_state(venv: VecEnv | None, state: dict[str, Any], last_obs: np.n
 
 
 # callbacks -----------------------------------------------------------------------------------
-class ResumableCallback(BaseCallback):
-    """A callback whose state a checkpoint saves (its ``n_calls`` and :meth:`get_checkpoint_state`).
-
-    After :meth:`set_checkpoint_state` the callback is :attr:`resumed`: its ``_on_training_start`` must
-    continue, not start over (no step-0 evaluation, no new skill sweep...).
-
-    :param verbose: verbosity
-    """
-
-    #: set when the state came from a checkpoint
-    resumed: bool = False
-
-    def get_checkpoint_state(self) -> dict[str, Any]:
-        """The callback's state beyond ``n_calls`` (none by default)."""
-        return {}
-
-    def set_checkpoint_state(self, state: dict[str, Any]) -> None:
-        """Restore what :meth:`get_checkpoint_state` returned."""
-
-
 def callback_state(callback: BaseCallback) -> dict[str, Any]:
-    """The state of ``callback`` a checkpoint saves: ``n_calls``, plus :class:`ResumableCallback`'s own.
+    """The state of ``callback`` a checkpoint saves: ``n_calls``, plus the own state of a
+    :class:`~sb3_cic.common.resumable.ResumableCallback`.
 
     :param callback: any SB3 callback
     """
@@ -380,7 +328,7 @@ class RunCheckpointCallback(BaseCallback):
         if self.every:  # a ValueError now rather than at the first checkpoint
             _, dummy = _vec_layers(self.model.get_env())
             for env in dummy.envs:
-                if not any(_has(layer, "get_checkpoint_state") for layer in _layers(env)):
+                if not any(has_method(layer, "get_checkpoint_state") for layer in env_layers(env)):
                     raise ValueError(
                         f"{env} cannot checkpoint its episode start (no get_checkpoint_state, as URLB's DMCEnv has): "
                         "use checkpoint_every=0"

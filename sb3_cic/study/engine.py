@@ -18,7 +18,7 @@ from typing import Any, Sequence
 from tqdm.auto import tqdm
 
 from sb3_cic import protocol
-from sb3_cic.protocol import Settings, record_study_settings
+from sb3_cic.protocol import Settings, check_study_settings, record_study_settings
 from sb3_cic.study.checkpoint import RunFolder
 from sb3_cic.study.graph import Run, build_graph, check_study, record_runs
 
@@ -181,7 +181,8 @@ def run_study(
         raise ValueError(f"fine-tuning from the snapshot at {from_snapshot} steps needs it among the intermediate "
                          f"snapshots (--snapshots {' '.join(map(str, settings.snapshots))}); the final one is the default")
     runs = build_graph(methods, domains, tasks, seeds, pretrain_seed, from_snapshot)
-    todo = check_study(study, runs, settings, pretrain_seed)
+    check_study_settings(study, settings, pretrain_seed)
+    todo = check_study(study, runs, pretrain_seed)
     record_study_settings(study, settings, pretrain_seed)
     record_runs(study, runs)
     if not todo:

@@ -14,8 +14,17 @@ from typing import Any, Sequence
 from envs.tasks import DOMAIN_TASKS
 from sb3_cic import zoo
 from sb3_cic.constants import EXPERT_SCORES
-from sb3_cic.protocol import Settings, check_snapshot, check_study_settings, finetune_dir, pretrain_dir, task_env_id, task_name
 from sb3_cic.study.checkpoint import RunFolder, write_json
+from sb3_cic.study.layout import (
+    check_snapshot,
+    finetune_dir,
+    pretrain_dir,
+    run_label,
+    snapshot_file,
+    study_file,
+    task_env_id,
+    task_name,
+)
 
 #: the URLB domains (those of the expert-scored tasks): ``--domains all``
 URLB_DOMAINS: tuple[str, ...] = tuple(sorted({task.split("_")[0] for task in EXPERT_SCORES}))
@@ -59,8 +68,8 @@ class Run:
         return not zoo.has_reward_module(zoo.get_algo(self.method))
 
     def folder(self, study: str | Path) -> Path:
-        """The run's folder in ``study`` (the layout of :mod:`sb3_cic.protocol`: ``cic@100000`` for a fine-tuning from
-        the snapshot at 100,000 steps)."""
+        """The run's folder in ``study`` (:mod:`sb3_cic.study.layout`: ``cic@100000`` for a fine-tuning from the
+        snapshot at 100,000 steps)."""
         if self.task is None:
             return pretrain_dir(study, self.method, self.domain)
         return finetune_dir(study, self.label, self.task, self.seed)
@@ -68,7 +77,7 @@ class Run:
     @property
     def label(self) -> str:
         """The method's name in the study's folders and reports (``cic``, ``cic@100000``)."""
-        return self.method if self.snapshot is None else f"{self.method}@{self.snapshot}"
+        return run_label(self.method, self.snapshot)
 
     def dependency(self, pretrain_seed: int) -> Run | None:
         """The pre-training a fine-tuning starts from (None for a pre-training or a run from scratch)."""
@@ -137,19 +146,17 @@ def build_graph(
     return runs
 
 
-def check_study(study: str | Path, runs: Sequence[Run], settings: Settings, pretrain_seed: int) -> list[Run]:
-    """Check the study folder against a command, before anything runs; return the runs still to do.
+def check_study(study: str | Path, runs: Sequence[Run], pretrain_seed: int) -> list[Run]:
+    """Check the study folder's runs against a command, before anything runs; return the runs still to do.
 
-    ``ValueError`` when the folder was made with other settings (``study.json``), when an unfinished run has a
-    corrupt checkpoint or has lost one, or when a finished pre-training lacks the snapshot its fine-tunings need.
-    Writes nothing.
+    ``ValueError`` when an unfinished run has a corrupt checkpoint or has lost one, or when a finished
+    pre-training lacks the snapshot its fine-tunings need (the settings of ``study.json``: see
+    :func:`~sb3_cic.protocol.check_study_settings`). Writes nothing.
 
     :param study: study folder
     :param runs: the command's runs (:func:`build_graph`)
-    :param settings: the command's settings
     :param pretrain_seed: the command's pre-training seed
     """
-    check_study_settings(study, settings, pretrain_seed)
     todo = []
     for run in runs:
         folder = RunFolder(run.folder(study))
@@ -158,7 +165,7 @@ def check_study(study: str | Path, runs: Sequence[Run], settings: Settings, pret
                 final = json.loads(folder.result.read_text())["steps"]
                 needed = {final if r.snapshot is None else r.snapshot for r in runs if r.dependency(pretrain_seed) == run}
                 for step in sorted(needed or {final}):
-                    check_snapshot(folder.path / f"snapshot_{step}.zip")
+                    check_snapshot(snapshot_file(folder.path, step))
             continue
         folder.read_meta()  # a ValueError for a corrupt or missing checkpoint
         todo.append(run)
@@ -172,7 +179,7 @@ def record_runs(study: str | Path, runs: Sequence[Run]) -> None:
     :param study: study folder
     :param runs: the runs of a command
     """
-    path = Path(study) / "study.json"
+    path = study_file(study)
     data = json.loads(path.read_text())
     listed = {astuple(Run(*run)) for run in data.get("runs", [])}  # rows of 4 (before snapshot) or 5
     listed |= {astuple(run) for run in runs}
@@ -185,7 +192,7 @@ def study_runs(study: str | Path) -> list[Run]:
 
     :param study: study folder
     """
-    path = Path(study) / "study.json"
+    path = study_file(study)
     if not path.is_file():
         raise ValueError(f"{study} is not a study folder (no study.json)")
     return [Run(*run) for run in json.loads(path.read_text()).get("runs", [])]

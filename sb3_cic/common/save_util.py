@@ -1,0 +1,114 @@
+"""Reading a saved model before loading it: its attributes, and what explains a snapshot loaded by mistake."""
+
+from __future__ import annotations
+
+import zipfile
+from typing import Any
+
+import numpy as np
+from stable_baselines3.common.save_util import json_to_data, open_path
+from stable_baselines3.common.type_aliases import GymEnv
+
+from sb3_cic.common.env_util import env_id_of, prepare_env
+from sb3_cic.skills import SkillPrior
+from sb3_cic.version import __version__
+
+
+def read_saved_data(path: Any, custom_objects: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The saved attributes of a model file (its ``data`` entry only; the networks are not read).
+
+    :param path: a path (``.zip`` added when missing, as SB3's ``load``) or a file object (left at its position)
+    :param custom_objects: see SB3's ``load``
+    """
+    file = open_path(path, "r", suffix="zip")
+    start = file.tell()
+    try:
+        with zipfile.ZipFile(file) as archive:
+            if "data" not in archive.namelist():
+                raise ValueError(f"{path} holds no saved model data")
+            return json_to_data(archive.read("data").decode(), custom_objects=custom_objects)
+    except zipfile.BadZipFile as error:
+        raise ValueError(f"Error: the file {path} wasn't a zip-file") from error
+    finally:
+        if file is path:
+            file.seek(start)
+        else:
+            file.close()
+
+
+def package_version() -> str:
+    """This package's version (saved with each model)."""
+    return __version__
+
+
+class SavedModel:
+    """What :meth:`~sb3_cic.ddpg.URLBDDPG.load` reads of a saved model before loading it, to explain a mistake.
+
+    :param data: the saved attributes (:func:`read_saved_data`)
+    """
+
+    def __init__(self, data: dict[str, Any]) -> None:
+        self.data = data
+        self.algorithm: str | None = data.get("algorithm")
+        self.prior: SkillPrior | None = data.get("skill_prior")
+        self.skill_dim = 0 if self.prior is None else self.prior.dim
+        self.obs_dim = int(data["observation_space"].shape[0])
+        self.action_shape = tuple(data["action_space"].shape)
+
+    def describe(self) -> str:
+        """``"the snapshot (CIC, pre-trained on URLB/walker-v0: state 24 + skill 64, action 6)"``."""
+        skill = f" + skill {self.skill_dim}" if self.skill_dim else ""
+        where = f"pre-trained on {self.data['env_id']}: " if self.data.get("env_id") else ""
+        action = int(np.prod(self.action_shape))
+        state = self.obs_dim - self.skill_dim
+        return f"the snapshot ({self.algorithm or 'a model'}, {where}state {state}{skill}, action {action})"
+
+    def version_note(self) -> str:
+        """A note on the package version that saved the snapshot when it is not this one (else empty)."""
+        saved = self.data.get("package_version")
+        if saved == package_version():
+            return ""
+        return f" (saved by {'sb3-cic ' + saved if saved else 'an earlier sb3-cic'}; this is sb3-cic {package_version()})"
+
+    def check(self, cls: type, env: GymEnv | str | None) -> GymEnv | str | None:
+        """:meth:`check_class`, then :meth:`check_env` unless ``env`` is None; return the env to load onto.
+
+        :param cls: the class loading the snapshot
+        :param env: environment id, environment or VecEnv (None: none)
+        """
+        self.check_class(cls)
+        return None if env is None else self.check_env(env)
+
+    def check_class(self, cls: type) -> None:
+        """``ValueError`` unless the snapshot was saved by ``cls``, one of its bases or a subclass of them.
+
+        :param cls: the class loading the snapshot
+        """
+        names = {c.__name__ for c in cls.__mro__}
+        if self.algorithm is not None and self.algorithm not in names:
+            raise ValueError(
+                f"{self.describe()} is a {self.algorithm} model: use {self.algorithm}.load_pretrained "
+                f"(or {self.algorithm}.load), not {cls.__name__}'s{self.version_note()}"
+            )
+
+    def check_env(self, env: GymEnv | str) -> GymEnv:
+        """``env`` prepared with the saved skill prior, or a ``ValueError`` saying how it differs from the snapshot's.
+
+        :param env: environment id, environment or VecEnv
+        """
+        name = env_id_of(env) or type(env).__name__
+        try:
+            env = prepare_env(env, self.prior, self.data.get("skill_resample_every", 50))
+        except ValueError as error:
+            if "skill_dim" not in str(error):
+                raise
+            raise ValueError(
+                f"{self.describe()}: {error}; pass the plain env (the model adds its own skill){self.version_note()}"
+            ) from error
+        obs_dim, action_shape = env.observation_space.shape[0], env.action_space.shape
+        if obs_dim != self.obs_dim or action_shape != self.action_shape:
+            raise ValueError(
+                f"{self.describe()} cannot act on {name} (state {obs_dim - self.skill_dim}, action "
+                f"{int(np.prod(action_shape))}): fine-tune a snapshot pre-trained on {name}'s domain{self.version_note()}"
+            )
+        return env

@@ -1,0 +1,73 @@
+"""The folder layout of a study, the one place that names its folders and files.
+
+One study lives in one folder::
+
+    <study>/study.json                      the settings the study was made with, and its runs
+    <study>/pretrain/<method>_<domain>/snapshot_<steps>.zip, result.json
+    <study>/finetune/<label>/<task>/seed_<k>/eval.csv, result.json
+    <study>/tensorboard/...
+
+and, in a run folder while the run is unfinished, ``checkpoint.zip`` and ``progress.json`` (``error.txt`` if it
+raised; :class:`~sb3_cic.study.checkpoint.RunFolder`). ``<label>`` is the method name when fine-tuning from the
+final snapshot, ``<method>@<steps>`` from another snapshot (:func:`run_label`); ``<task>`` is the URLB task name
+(``walker_flip``, :func:`task_name`). The run code (:mod:`sb3_cic.protocol`) and the job graph
+(:mod:`sb3_cic.study.graph`) both read the layout here.
+"""
+
+from __future__ import annotations
+
+import zipfile
+from pathlib import Path
+
+from envs.tasks import DOMAIN_TASKS
+
+
+def study_file(study: str | Path) -> Path:
+    """``<study>/study.json``: the study's settings and runs."""
+    return Path(study) / "study.json"
+
+
+def task_name(domain: str, task: str) -> str:
+    """URLB task name (``walker_flip``) of a domain and task (``flip`` or ``walker_flip``)."""
+    return task if task.startswith(f"{domain}_") else f"{domain}_{task}"
+
+
+def task_env_id(domain: str, task: str) -> str:
+    """Gymnasium id of a task (``URLB/walker-flip-v0``); ``ValueError`` for a task the domain does not have."""
+    short = task[len(domain) + 1 :] if task.startswith(f"{domain}_") else task
+    if short not in DOMAIN_TASKS[domain]:
+        raise ValueError(f"unknown task {task!r} of {domain}; known: {DOMAIN_TASKS[domain]}")
+    return f"URLB/{domain}-{short}-v0"
+
+
+def run_label(method: str, snapshot: int | None) -> str:
+    """The method's name in the study's folders and reports: ``cic``, or ``cic@100000`` for fine-tunings from the
+    snapshot at 100,000 steps (None: the final one)."""
+    return method if snapshot is None else f"{method}@{snapshot}"
+
+
+def pretrain_dir(study: str | Path, method: str, domain: str) -> Path:
+    """Folder of the pre-training of ``method`` on ``domain``."""
+    return Path(study) / "pretrain" / f"{method}_{domain}"
+
+
+def snapshot_file(folder: str | Path, step: int) -> Path:
+    """The snapshot a pre-training saved at ``step`` in its ``folder``."""
+    return Path(folder) / f"snapshot_{step}.zip"
+
+
+def finetune_dir(study: str | Path, label: str, task: str, seed: int) -> Path:
+    """Folder of a fine-tuning run (``label``: :func:`run_label`; ``task``: the URLB task name, ``walker_flip``)."""
+    return Path(study) / "finetune" / label / task / f"seed_{seed}"
+
+
+def check_snapshot(path: Path) -> None:
+    """``ValueError`` unless ``path`` is a readable saved model (a zip with SB3's ``data``, CRCs intact)."""
+    if not path.is_file():
+        raise ValueError(f"the snapshot {path} is missing (its pre-training's result.json lists it)")
+    try:
+        with zipfile.ZipFile(path) as archive:
+            if "data" not in archive.namelist() or archive.testzip() is not None:
+                raise zipfile.BadZipFile("no readable 'data' entry")
+    except (OSError, zipfile.BadZipFile) as error:
+        raise ValueError(f"the snapshot {path} is corrupt ({error!r}); pre-train again in a new study folder") from error
