@@ -111,6 +111,10 @@ def start_ray(
     """Connect to a Ray cluster (``address``: ``auto``, ``ray://host:10001``...) or start a local instance that
     runs ``workers`` runs at a time.
 
+    A cluster confined to one machine (nodes started with ``--node-ip-address 127.0.0.1``): Ray turns a loopback
+    ``address`` into the machine's network address, where such nodes do not listen, unless the environment has
+    ``RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER=0`` (Ray's switch for local-only clusters).
+
     :param address: a running cluster's address; None: a local instance on this machine
     :param workers: runs at a time of the local instance
     :param cpus_per_run: CPUs per run (the local instance has ``workers * cpus_per_run``)
