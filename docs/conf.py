@@ -70,27 +70,18 @@ def _skip_public(app, what, name, obj, skip, options):
     return None
 
 
-# Section anchors renamed after pages linked to them: the old anchor leads to the section's new one.
-_RENAMED_ANCHORS = {
-    # the walker report's calibration section lost "(in progress)" when the calibration finished
-    "calibration-against-the-reference-code-in-progress": "calibration-against-the-reference-code",
-}
-
-
 def _local_links(app, doctree):
     """Resolve the results pages' links that are not to documents.
 
     The results pages link to folders of committed run files (``[runs/](runs/)``), which GitHub lists
     but a Sphinx site has no page for: such a link is shown as the folder's path, in code style,
-    instead of a broken link. Links to a renamed section anchor are pointed at its new name.
+    instead of a broken link.
     """
     docdir = Path(app.env.doc2path(app.env.docname)).parent
     for node in list(doctree.findall(addnodes.pending_xref)):
         if node.get("reftype") != "myst":
             continue
-        if node.get("refdomain") == "doc" and node.get("reftargetid") in _RENAMED_ANCHORS:
-            node["reftargetid"] = _RENAMED_ANCHORS[node["reftargetid"]]
-        elif node.get("refdomain") is None:
+        if node.get("refdomain") is None:
             target = node["reftarget"].split("#", 1)[0]
             if target and (docdir / target).is_dir():
                 node.replace_self(nodes.literal(node.astext(), node.astext() or target))
