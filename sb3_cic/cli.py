@@ -13,17 +13,24 @@ Options ``train`` and ``finetune`` add to rl-zoo's: ``--small`` (CPU-sized hyper
 :data:`sb3_cic.zoo.SMALL_HYPERPARAMS`); ``--eval-freq`` and ``--eval-episodes`` configure the yaml's
 :class:`~sb3_cic.callbacks.URLBEvalCallback` (rl-zoo's own EvalCallback is off, ``--eval-freq -1``);
 the grid sweep of the yaml's :class:`~sb3_cic.callbacks.SkillGridSweepCallback` follows ``learning_starts``.
+
+A command that fails on bad input (an unknown method, a snapshot of another domain, a study folder made with
+other settings, an unknown option...) prints one line, ``sb3-cic <command>: error: <message>``, exits with
+code 2 and leaves nothing behind (see :data:`USER_ERRORS`, :func:`main`); other errors raise as they are.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import runpy
+import shutil
 import sys
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Iterator, NoReturn, Sequence
 
+import gymnasium as gym
 import yaml
 
 from sb3_cic import zoo
@@ -41,6 +48,29 @@ USAGE = """usage: sb3-cic {train,finetune,enjoy,record-video,protocol,study,stat
   skills        a snapshot's policy under n skills: one grid video and a plot (needs MUJOCO_GL=egl)
 
 Run `sb3-cic <command> --help` for the options (train/finetune/enjoy show rl-zoo's)."""
+
+#: the errors that mean bad input: reported in one line with exit code 2 (other exceptions raise as they are)
+USER_ERRORS: tuple[type[BaseException], ...] = (ValueError, FileNotFoundError, gym.error.Error)
+
+
+class UsageError(Exception):
+    """A command line argparse refused (an unknown option, a missing argument...): a user error of :func:`main`."""
+
+
+def _usage_error(parser: argparse.ArgumentParser, message: str) -> NoReturn:
+    raise UsageError(message)
+
+
+@contextlib.contextmanager
+def _one_line_usage_errors() -> Iterator[None]:
+    """Within the block, argparse's errors (ours and rl-zoo's) raise :class:`UsageError` instead of printing
+    the usage and exiting: :func:`main` reports them in one line like the other user errors."""
+    saved = argparse.ArgumentParser.error
+    argparse.ArgumentParser.error = _usage_error  # type: ignore[method-assign,assignment]
+    try:
+        yield
+    finally:
+        argparse.ArgumentParser.error = saved  # type: ignore[method-assign]
 
 
 def _zoo_args(argv: Sequence[str], finetune: bool) -> tuple[list[str], str, str, str]:
@@ -68,12 +98,17 @@ def _zoo_args(argv: Sequence[str], finetune: bool) -> tuple[list[str], str, str,
     config = known.conf_file or str(zoo.default_config(algo))
     is_task = known.env.removeprefix("URLB/").count("-") >= 2
     if not finetune and is_task and zoo.has_reward_module(cls):
-        raise SystemExit(
+        raise ValueError(
             f"{known.env} is a task: pre-train {algo} on the domain's reward-free id (URLB/<domain>-v0), "
             "then fine-tune with `sb3-cic finetune -i <model.zip>`"
         )
     if finetune and not any(arg in rest for arg in ("-i", "--trained-agent")):
-        raise SystemExit("sb3-cic finetune needs the pre-trained model: -i <model.zip>")
+        raise ValueError("sb3-cic finetune needs the pre-trained model: -i <model.zip>")
+    for key in ("-i", "--trained-agent"):
+        if key in rest:
+            model = rest[rest.index(key) + 1] if rest.index(key) + 1 < len(rest) else ""
+            if not model.endswith(".zip") or not os.path.isfile(model):
+                raise ValueError(f"{key} {model}: no saved model (.zip) there")
     overrides = {**(zoo.SMALL_HYPERPARAMS if known.small else {}), **zoo.parse_hyperparams(known.hyperparams)}
     overrides = zoo.zoo_overrides(config, known.env, overrides, known.eval_freq, known.eval_episodes)
     args = ["--algo", algo, "--env", known.env, "--conf-file", config, "-f", known.log_folder, "--eval-freq", "-1", *rest]
@@ -82,22 +117,80 @@ def _zoo_args(argv: Sequence[str], finetune: bool) -> tuple[list[str], str, str,
     return args, algo, known.env, known.log_folder
 
 
-def _run_zoo_train(args: list[str]) -> None:
+class _BuildRecorder:
+    """An ``rl_zoo3.ALGOS`` entry that records whether rl-zoo built (or loaded) the model: a user error before
+    that removes the run folder rl-zoo made (:func:`_run_zoo_train`); after it, training has begun and the
+    folder stays.
+
+    :param entry: the algorithm class (or its :class:`~sb3_cic.zoo.PretrainedLoader`)
+    """
+
+    def __init__(self, entry: Any) -> None:
+        self.entry = entry
+        self.__name__ = entry.__name__
+        self.built = False
+
+    def __call__(self, *args: Any, **kwargs: Any) -> Any:
+        model = self.entry(*args, **kwargs)
+        self.built = True
+        return model
+
+    def load(self, *args: Any, **kwargs: Any) -> Any:
+        """The entry's ``load``."""
+        model = self.entry.load(*args, **kwargs)
+        self.built = True
+        return model
+
+
+def _remover(folder: Path) -> Any:
+    """A function that removes what was made of ``folder`` since this call: the outermost of ``folder`` and its
+    parents that did not exist then, or else the entries that appeared in ``folder``.
+
+    :param folder: the folder a command writes into
+    """
+    missing = [path for path in (*reversed(folder.parents), folder) if not path.exists()]
+    before = set(folder.iterdir()) if not missing and folder.is_dir() else set()
+
+    def remove() -> None:
+        if missing:
+            shutil.rmtree(missing[0], ignore_errors=True)
+        elif folder.is_dir():
+            for path in set(folder.iterdir()) - before:
+                shutil.rmtree(path, ignore_errors=True) if path.is_dir() else path.unlink(missing_ok=True)
+
+    return remove
+
+
+def _run_zoo_train(args: list[str], algo: str | None = None, log_folder: str | None = None) -> None:
+    """rl_zoo3's ``train`` with ``args``; on a user error before the model of ``algo`` is built, the run folder
+    it made under ``log_folder/algo`` is removed (see :data:`USER_ERRORS`)."""
+    from rl_zoo3 import ALGOS as algos
     from rl_zoo3.train import train
 
+    entry = algos.get(algo or "")
+    recorder = _BuildRecorder(entry) if entry is not None and log_folder is not None else None
+    remove = _remover(Path(str(log_folder)) / str(algo)) if recorder is not None else None
+    if recorder is not None:
+        algos[str(algo)] = recorder
     argv = sys.argv
     sys.argv = ["rl_zoo3 train", *args]
     try:
         train()
+    except (*USER_ERRORS, UsageError):
+        if remove is not None and recorder is not None and not recorder.built:
+            remove()
+        raise
     finally:
         sys.argv = argv
+        if recorder is not None:
+            algos[str(algo)] = entry
 
 
 def train(argv: Sequence[str]) -> None:
     """``sb3-cic train``: rl_zoo3's train with the sb3-cic algorithms and configs."""
     zoo.register_algos()
-    args, _, _, _ = _zoo_args(argv, finetune=False)
-    _run_zoo_train(args)
+    args, algo, _, log_folder = _zoo_args(argv, finetune=False)
+    _run_zoo_train(args, algo, log_folder)
 
 
 def finetune(argv: Sequence[str]) -> Path | None:
@@ -130,7 +223,7 @@ def finetune(argv: Sequence[str]) -> Path | None:
             args[index] = str(shutil.copy(pretrained, Path(tmp) / pretrained.name))
         algos[algo] = zoo.PretrainedLoader(original)  # type: ignore[assignment]
         try:
-            _run_zoo_train(args)
+            _run_zoo_train(args, algo, log_folder)
         finally:
             algos[algo] = original
     env_name = EnvironmentName(env_id)
@@ -164,6 +257,15 @@ def _with_default_folder(argv: Sequence[str]) -> list[str]:
     return argv
 
 
+@contextlib.contextmanager
+def _assertions_as_user_errors() -> Iterator[None]:
+    """rl-zoo's ``enjoy`` and ``record_video`` check their input with ``assert`` (a missing folder...): a ``ValueError``."""
+    try:
+        yield
+    except AssertionError as error:
+        raise ValueError(str(error) or "rl-zoo refused the arguments") from error
+
+
 def enjoy(argv: Sequence[str]) -> None:
     """``sb3-cic enjoy``: rl_zoo3's enjoy with the sb3-cic algorithms (default folder ``logs``)."""
     from rl_zoo3.enjoy import enjoy as zoo_enjoy
@@ -171,7 +273,8 @@ def enjoy(argv: Sequence[str]) -> None:
     zoo.register_algos()
     saved, sys.argv = sys.argv, ["rl_zoo3 enjoy", *_with_default_folder(argv)]
     try:
-        zoo_enjoy()
+        with _assertions_as_user_errors():
+            zoo_enjoy()
     finally:
         sys.argv = saved
 
@@ -181,13 +284,57 @@ def record_video(argv: Sequence[str]) -> None:
     zoo.register_algos()
     saved, sys.argv = sys.argv, ["rl_zoo3 record_video", *_with_default_folder(argv)]
     try:
-        runpy.run_module("rl_zoo3.record_video", run_name="__main__")
+        with _assertions_as_user_errors():
+            runpy.run_module("rl_zoo3.record_video", run_name="__main__")
     finally:
         sys.argv = saved
 
 
+def _run(command: str, argv: list[str]) -> int:
+    """Run one command; return its exit code."""
+    if command == "train":
+        train(argv)
+    elif command == "finetune":
+        finetune(argv)
+    elif command == "enjoy":
+        enjoy(argv)
+    elif command in ("record-video", "record_video"):
+        record_video(argv)
+    elif command == "protocol":
+        from sb3_cic.protocol import main as protocol_main
+
+        protocol_main(argv)
+    elif command in ("study", "status"):
+        from sb3_cic.study import cli as study_cli
+
+        return (study_cli.main if command == "study" else study_cli.status_main)(argv)
+    elif command == "report":
+        from sb3_cic.evaluation import main as report_main
+
+        report_main(argv)
+    elif command == "skills":
+        from sb3_cic.skill_video import main as skills_main
+
+        skills_main(argv)
+    else:
+        _fail("sb3-cic", f"unknown command {command!r}", usage=True)
+    return 0
+
+
+def _fail(prog: str, message: str, usage: bool = False) -> NoReturn:
+    """Print ``<prog>: error: <message>`` as one line on stderr (and, for a refused command line, where the
+    help is) and exit with code 2."""
+    text = " ".join(line.strip() for line in message.splitlines() if line.strip())
+    hint = f" (see {prog} --help)" if usage else ""
+    print(f"{prog}: error: {text}{hint}", file=sys.stderr)
+    raise SystemExit(2)
+
+
 def main(argv: Sequence[str] | None = None) -> None:
     """Entry point of ``sb3-cic``.
+
+    Bad input (:data:`USER_ERRORS`, a refused command line, a command's ``SystemExit`` with a message) is one
+    line on stderr and exit code 2, with nothing of the failed command left behind.
 
     :param argv: arguments (default: ``sys.argv[1:]``)
     """
@@ -196,34 +343,20 @@ def main(argv: Sequence[str] | None = None) -> None:
         print(USAGE)
         return
     command, rest = argv[0], argv[1:]
-    if command == "train":
-        train(rest)
-    elif command == "finetune":
-        finetune(rest)
-    elif command == "enjoy":
-        enjoy(rest)
-    elif command in ("record-video", "record_video"):
-        record_video(rest)
-    elif command == "protocol":
-        from sb3_cic.protocol import main as protocol_main
-
-        protocol_main(rest)
-    elif command in ("study", "status"):
-        from sb3_cic.study import cli as study_cli
-
-        code = (study_cli.main if command == "study" else study_cli.status_main)(rest)
-        if code:
-            raise SystemExit(code)
-    elif command == "report":
-        from sb3_cic.evaluation import main as report_main
-
-        report_main(rest)
-    elif command == "skills":
-        from sb3_cic.skill_video import main as skills_main
-
-        skills_main(rest)
-    else:
-        raise SystemExit(f"unknown command {command!r}\n{USAGE}")
+    prog = f"sb3-cic {command}"
+    try:
+        with _one_line_usage_errors():
+            code = _run(command, rest)
+    except UsageError as error:
+        _fail(prog, str(error), usage=True)
+    except USER_ERRORS as error:
+        _fail(prog, str(error) or type(error).__name__)
+    except SystemExit as exit_:
+        if isinstance(exit_.code, str):  # a command's own message
+            _fail(prog, exit_.code)
+        raise
+    if code:
+        raise SystemExit(code)
 
 
 if __name__ == "__main__":

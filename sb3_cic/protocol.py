@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import hashlib
 import json
 import math
 import time
@@ -93,11 +94,16 @@ class Settings:
         "hidden_dim", "batch_size", "learning_starts", "buffer_size", "pretrain_steps", "finetune_steps",
         "eval_freq", "eval_episodes", "snapshots",
     )
+    #: the study settings only a pre-training (and the fine-tunings from it) uses; a run from scratch does not
+    PRETRAIN_KEYS: ClassVar[tuple[str, ...]] = ("pretrain_steps", "snapshots")
 
-    def study_settings(self) -> dict[str, Any]:
-        """The settings recorded in ``study.json`` (:attr:`STUDY_KEYS`), as JSON values."""
+    def study_settings(self, pretrained: bool = True) -> dict[str, Any]:
+        """The settings recorded in ``study.json`` (:attr:`STUDY_KEYS`), as JSON values.
+
+        :param pretrained: whether the runs pre-train (False: runs from scratch, without :attr:`PRETRAIN_KEYS`)
+        """
         return {key: list(value) if isinstance(value, tuple) else value for key, value in asdict(self).items()
-                if key in self.STUDY_KEYS}
+                if key in self.STUDY_KEYS and (pretrained or key not in self.PRETRAIN_KEYS)}
 
     def overrides(self, finetune: bool) -> dict[str, Any]:
         """Hyperparameter overrides for rl-zoo's reading of the yaml."""
@@ -136,45 +142,130 @@ class FinetuneResult:
     hyperparams: dict[str, str] = field(default_factory=dict)
 
 
-def check_study_settings(study: str | Path, settings: Settings, pretrain_seed: int) -> dict[str, Any]:
-    """The content of ``<study>/study.json`` for these settings; ``ValueError`` if the folder holds another.
+def conf_file_record(method: str, config: str | Path | None = None) -> dict[str, Any]:
+    """What ``study.json`` records of the yaml a method's runs read: the file as given (None: the default
+    ``zoo_configs/<method>.yml``) and the sha256 of its content, which :func:`check_study_settings` compares.
 
-    Writes nothing (see :func:`record_study_settings`).
+    :param method: rl-zoo name of the method
+    :param config: the ``--conf-file`` (None: the default)
+    """
+    path = Path(config) if config is not None else zoo.default_config(method)
+    if not path.is_file():
+        raise ValueError(f"no yaml file {path} (--conf-file)")
+    return {"file": None if config is None else str(config), "sha256": hashlib.sha256(path.read_bytes()).hexdigest()}
+
+
+def check_study_settings(
+    study: str | Path,
+    settings: Settings,
+    pretrain_seed: int,
+    pretrained: bool = True,
+    configs: dict[str, str | Path | None] | None = None,
+) -> dict[str, Any]:
+    """The content of ``<study>/study.json`` (but its runs) once a command with these settings is recorded;
+    ``ValueError`` if the folder holds other values of the settings the command's runs use.
+
+    ``study.json`` holds the settings the study's runs used so far: the pre-training ones
+    (:attr:`Settings.PRETRAIN_KEYS`, ``pretrain_seed``) once a run pre-trains, each method's yaml
+    (:func:`conf_file_record`) once it ran. A command is checked against the recorded values of the settings its
+    runs use, and adds those not recorded yet. Writes nothing (see :func:`record_study_settings`).
 
     :param study: study folder
     :param settings: the command's settings
     :param pretrain_seed: the command's pre-training seed
+    :param pretrained: whether the command's runs pre-train (False: only runs from scratch, as DDPG's)
+    :param configs: the yaml of each method of the command (None: the default ``zoo_configs/<method>.yml``);
+        None: not checked
     """
-    wanted = {"settings": settings.study_settings(), "pretrain_seed": pretrain_seed}
+    wanted: dict[str, Any] = {"settings": settings.study_settings(pretrained)}
+    if pretrained:
+        wanted["pretrain_seed"] = pretrain_seed
+    if configs:
+        wanted["conf_files"] = {method: conf_file_record(method, config) for method, config in configs.items()}
     path = Path(study) / "study.json"
     if not path.exists():  # a new study (or one made before study.json existed: recorded as it goes on)
         return wanted
     try:
         recorded = json.loads(path.read_text())
-        recorded = {"settings": recorded["settings"], "pretrain_seed": recorded["pretrain_seed"]}
+        recorded = {key: recorded[key] for key in ("settings", "pretrain_seed", "conf_files") if key in recorded}
+        old_settings, old_confs = dict(recorded["settings"]), dict(recorded.get("conf_files", {}))
     except (ValueError, KeyError, TypeError) as error:
         raise ValueError(f"unreadable {path} ({error!r})") from error
-    if recorded != wanted:
-        diff = {
-            key: (recorded["settings"].get(key), value) for key, value in wanted["settings"].items()
-            if recorded["settings"].get(key) != value
-        }
-        if recorded["pretrain_seed"] != pretrain_seed:
-            diff["pretrain_seed"] = (recorded["pretrain_seed"], pretrain_seed)
+    diff = {key: (old_settings[key], value) for key, value in wanted["settings"].items()
+            if key in old_settings and old_settings[key] != value}
+    if pretrained and recorded.get("pretrain_seed", pretrain_seed) != pretrain_seed:
+        diff["pretrain_seed"] = (recorded["pretrain_seed"], pretrain_seed)
+    for method, conf in wanted.get("conf_files", {}).items():
+        if method in old_confs and old_confs[method]["sha256"] != conf["sha256"]:
+            diff[f"conf_file of {method} (its content)"] = (old_confs[method]["file"], conf["file"])
+    if diff:
         raise ValueError(
             f"{study} was made with other settings; (study, command): {diff}. "
             "Use the study's settings or another folder"
         )
-    return wanted
+    merged = {**recorded, "settings": {**old_settings, **wanted["settings"]}}
+    if "pretrain_seed" in wanted:
+        merged["pretrain_seed"] = pretrain_seed
+    if old_confs or "conf_files" in wanted:
+        merged["conf_files"] = {**old_confs, **wanted.get("conf_files", {})}
+    return merged
 
 
-def record_study_settings(study: str | Path, settings: Settings, pretrain_seed: int) -> None:
-    """Check (:func:`check_study_settings`), then write ``<study>/study.json`` if it is missing."""
-    wanted = check_study_settings(study, settings, pretrain_seed)
+def record_study_settings(
+    study: str | Path,
+    settings: Settings,
+    pretrain_seed: int,
+    pretrained: bool = True,
+    configs: dict[str, str | Path | None] | None = None,
+) -> None:
+    """Check (:func:`check_study_settings`, same arguments), then write into ``<study>/study.json`` the settings
+    it does not record yet (its runs are kept)."""
+    wanted = check_study_settings(study, settings, pretrain_seed, pretrained, configs)
     path = Path(study) / "study.json"
-    if not path.exists():
+    data = json.loads(path.read_text()) if path.exists() else {}
+    if {**data, **wanted} != data:
         path.parent.mkdir(parents=True, exist_ok=True)
-        write_json(path, wanted)
+        write_json(path, {**data, **wanted})
+
+
+def snapshot_steps(settings: Settings, steps: int) -> list[int]:
+    """The steps at which a pre-training of ``steps`` steps saves a snapshot: the earlier of ``settings.snapshots``
+    and the final step.
+
+    :param settings: the run's settings
+    :param steps: the pre-training's steps
+    """
+    return sorted({s for s in settings.snapshots if s < steps} | {steps})
+
+
+def _check_run_inputs(
+    study: str | Path,
+    method: str,
+    domain: str,
+    tasks: Sequence[str],
+    settings: Settings,
+    snapshot: int | None,
+    from_scratch: bool,
+    config: str | Path | None,
+) -> None:
+    """``ValueError`` before anything is written if the runs of :func:`run_protocol` would stop on their input:
+    a missing yaml or one without an entry for one of their envs, or a snapshot the pre-training does not save."""
+    if config is not None and not Path(config).is_file():
+        raise ValueError(f"no yaml file {config} (--conf-file)")
+    overrides = settings.overrides(finetune=not from_scratch)
+    for task in tasks:  # rl-zoo's ValueError for a missing entry
+        zoo.zoo_hyperparams(method, task_env_id(domain, task), config, overrides)
+    if from_scratch:
+        return
+    _, _, n_timesteps, _ = zoo.zoo_hyperparams(method, f"URLB/{domain}-v0", config, settings.overrides(finetune=False))
+    if snapshot is not None:
+        pre_file = pretrain_dir(study, method, domain) / "result.json"
+        if pre_file.exists():
+            saved = sorted(int(k) for k in json.loads(pre_file.read_text())["snapshots"])
+        else:
+            saved = snapshot_steps(settings, int(settings.pretrain_steps or n_timesteps))
+        if int(snapshot) not in saved:
+            raise ValueError(f"no snapshot at {snapshot} steps: the pre-training saves {saved} (--snapshots)")
 
 
 def _describe(hyperparams: dict[str, Any]) -> dict[str, str]:
@@ -240,6 +331,7 @@ def pretrain(
     cls = zoo.get_algo(method)
     folder = RunFolder(pretrain_dir(study, method, domain))
     if folder.done:
+        folder.clean()  # what a run killed just after writing result.json left
         return json.loads(folder.result.read_text())
     checkpoint = folder.read_meta()  # a ValueError for a corrupt or missing checkpoint, before any work
     folder.path.mkdir(parents=True, exist_ok=True)
@@ -254,7 +346,7 @@ def pretrain(
         model = folder.load_model(cls, env_id, **common)
     else:
         model = cls(env=env_id, seed=seed, **common, **hyperparams)
-    snapshots = SnapshotCallback(folder.path, [s for s in settings.snapshots if s < steps] + [steps], settings.verbose)
+    snapshots = SnapshotCallback(folder.path, snapshot_steps(settings, steps), settings.verbose)
     wall = _train(model, folder, checkpoint, steps, [snapshots], settings.pretrain_checkpoint_every, settings,
                   f"pretrain_{method}_{domain}")
     result = {
@@ -350,6 +442,7 @@ def finetune(
         label = run_label(method, None if snapshot == int(pre["steps"]) else snapshot)
     folder = RunFolder(finetune_dir(study, label, name, seed))
     if folder.done:
+        folder.clean()  # what a run killed just after writing result.json left
         return json.loads(folder.result.read_text())
     snapshot_path = snapshot_file(pretrain_dir(study, method, domain), snapshot)
     if not from_scratch:
@@ -457,7 +550,8 @@ def run_protocol(
         raise ValueError(f"unknown domain {domain!r}; known: {sorted(DOMAIN_TASKS)}")
     for task in tasks or ():
         task_env_id(domain, task)  # a ValueError for an unknown task
-    record_study_settings(study, settings, pretrain_seed)
+    _check_run_inputs(study, method, domain, tasks or DOMAIN_TASKS[domain], settings, snapshot, from_scratch, config)
+    record_study_settings(study, settings, pretrain_seed, pretrained=not from_scratch, configs={method: config})
     if snapshot is None and from_scratch != zoo.has_reward_module(cls):  # the study's layout: listed for ``status``
         record_runs(study, build_graph([method], [domain], tasks, seeds, pretrain_seed))
     if not from_scratch:

@@ -7,8 +7,11 @@ check the plumbing and recompute the report's statistics with numpy.
 
 from __future__ import annotations
 
+import hashlib
 import json
+import shutil
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -20,7 +23,8 @@ from sb3_cic.cli import main
 from sb3_cic.constants import EXPERT_SCORES
 from sb3_cic import evaluation
 from sb3_cic.evaluation import write_report
-from sb3_cic.protocol import Settings, run_protocol
+from sb3_cic.protocol import Settings, check_study_settings, record_study_settings, run_protocol
+from sb3_cic.study.checkpoint import RunFolder
 
 SETTINGS = Settings(
     hidden_dim=32,
@@ -142,7 +146,7 @@ def test_rerun_skips_finished_runs(study: Path):
     assert sorted(study.glob("**/result.json")) == sorted(p for p in files if p.name == "result.json")
 
 
-def test_zoo_cli_train_finetune_enjoy(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+def test_zoo_cli_train_finetune_enjoy(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture):
     threads = th.get_num_threads()
     monkeypatch.chdir(tmp_path)
     small = ["--small", "--seed", "0", "--num-threads", "1", "--verbose", "0"]
@@ -172,8 +176,10 @@ def test_zoo_cli_train_finetune_enjoy(tmp_path: Path, monkeypatch: pytest.Monkey
     assert data["reward_free"] is False and data["num_timesteps"] == 500 and data["finetune_skill"] is not None
 
     main(["enjoy", "--algo", "cic", "--env", "URLB/point_mass-reach-v0", "--no-render", "-n", "20", "--deterministic"])
-    with pytest.raises(SystemExit, match="pre-train"):
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as exit_info:
         main(["train", "--algo", "cic", "--env", "URLB/point_mass-reach-v0", *small])
+    assert exit_info.value.code == 2 and "is a task: pre-train cic" in capsys.readouterr().err
     th.set_num_threads(threads)
 
 
@@ -210,3 +216,92 @@ def test_bootstrap_intervals_are_reproducible():
     other = evaluation.aggregate_scores(matrices, reps=300, seed=1)
     assert other["cic"]["IQM"]["point"] == first["cic"]["IQM"]["point"]
     assert other["cic"]["IQM"]["low"] != first["cic"]["IQM"]["low"]  # the seed drives the resampling
+
+
+#: the command line of SETTINGS' fine-tuning settings (a run from scratch uses no pre-training setting)
+FINETUNE_FLAGS = [
+    "--hidden-dim", "32", "--batch-size", "32", "--learning-starts", "500", "--buffer-size", "10000",
+    "--finetune-steps", "1000", "--eval-freq", "500", "--eval-episodes", "2", "--num-threads", "1", "--no-progress",
+]
+
+
+def _refused(arguments: list[str], capsys: pytest.CaptureFixture) -> str:
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as exit_info:
+        main(arguments)
+    err = capsys.readouterr().err
+    assert exit_info.value.code == 2 and len(err.strip().splitlines()) == 1, err
+    return err
+
+
+def test_settings_a_run_does_not_use_do_not_block_it(tmp_path: Path, capsys: pytest.CaptureFixture):
+    """``protocol --method ddpg`` into a study made by ``--method cic --pretrain-steps 1000``: DDPG does not pre-train,
+    so the pre-training settings (steps, snapshots, seed) do not block it; those it uses still do. The study records
+    each method's ``--conf-file`` (its content: another path to the same yaml is the same)."""
+    threads = th.get_num_threads()
+    study = tmp_path / "study"
+    record_study_settings(study, replace(SETTINGS, pretrain_steps=1000), 0)  # as `--method cic --pretrain-steps 1000`
+    custom = tmp_path / "ddpg_custom.yml"
+    custom.write_text((Path(__file__).resolve().parent.parent / "zoo_configs" / "ddpg.yml").read_text() + "# tuned\n")
+    ddpg = ["protocol", "--method", "ddpg", "--domain", "point_mass", "--tasks", "reach", "--seeds", "0",
+            "--study", str(study), "--pretrain-seed", "7"]
+    main([*ddpg, *FINETUNE_FLAGS, "--conf-file", str(custom)])
+    th.set_num_threads(threads)
+    assert json.loads((study / "finetune" / "ddpg" / "point_mass_reach" / "seed_0" / "result.json").read_text())["seed"] == 0
+    recorded = json.loads((study / "study.json").read_text())
+    assert recorded["settings"]["pretrain_steps"] == 1000 and recorded["pretrain_seed"] == 0  # cic's, kept
+    assert recorded["conf_files"] == {"ddpg": {"file": str(custom), "sha256": hashlib.sha256(custom.read_bytes()).hexdigest()}}
+
+    # the settings a run uses are still checked
+    assert "hidden_dim': (32, 64)" in _refused([*ddpg, *FINETUNE_FLAGS, "--conf-file", str(custom), "--hidden-dim", "64"],
+                                              capsys)
+    assert "conf_file of ddpg" in _refused([*ddpg, *FINETUNE_FLAGS], capsys)  # the default yaml is another
+    cic = ["protocol", "--method", "cic", "--domain", "walker", "--tasks", "stand", "--seeds", "0", "--study", str(study),
+           *FINETUNE_FLAGS]
+    assert "pretrain_steps': (1000, 2000)" in _refused([*cic, "--pretrain-steps", "2000"], capsys)
+    assert "pretrain_seed': (0, 7)" in _refused([*cic, "--pretrain-steps", "1000", "--pretrain-seed", "7"], capsys)
+    moved = tmp_path / "moved.yml"
+    shutil.copy(custom, moved)
+    main([*ddpg, *FINETUNE_FLAGS, "--conf-file", str(moved)])  # the same yaml elsewhere: accepted (the run is done)
+    custom.write_text(custom.read_text() + "# edited\n")
+    assert "conf_file of ddpg (its content)" in _refused([*ddpg, *FINETUNE_FLAGS, "--conf-file", str(custom)], capsys)
+
+
+def test_a_study_begun_from_scratch_takes_pre_training_settings_later(tmp_path: Path):
+    """DDPG first records no pre-training setting; a method that pre-trains records them, and is then held to them."""
+    ddpg = replace(SETTINGS, pretrain_steps=None, snapshots=(7,))
+    record_study_settings(tmp_path, ddpg, 5, pretrained=False)
+    assert "pretrain_steps" not in json.loads((tmp_path / "study.json").read_text())["settings"]
+    record_study_settings(tmp_path, SETTINGS, 0)
+    recorded = json.loads((tmp_path / "study.json").read_text())
+    assert recorded["settings"] == SETTINGS.study_settings() and recorded["pretrain_seed"] == 0
+    check_study_settings(tmp_path, ddpg, 5, pretrained=False)
+    with pytest.raises(ValueError, match="pretrain_steps.*1500, None"):
+        check_study_settings(tmp_path, ddpg, 0)
+    with pytest.raises(ValueError, match="finetune_steps.*1000, 2000"):
+        check_study_settings(tmp_path, replace(ddpg, finetune_steps=2000), 5, pretrained=False)
+
+
+def test_run_killed_before_deleting_its_checkpoint_ends_clean(study: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    """A run killed between writing ``result.json`` and deleting its checkpoint: done, and its checkpoint and
+    ``progress.json`` are deleted when the protocol next sees it."""
+    folder = tmp_path / "study"
+    shutil.copytree(study, folder)
+    runs = [RunFolder(folder / "pretrain" / "cic_walker"), RunFolder(folder / "finetune" / "ddpg" / "walker_stand" / "seed_0")]
+    for run in runs:  # the run, at its end: a checkpoint and progress.json, then finish() killed after result.json
+        result = json.loads(run.result.read_text())
+        run.result.unlink()
+        run.start(1000)
+        run.checkpoint.write_bytes(b"PK\x05\x06" + b"\0" * 18)  # an (empty) zip stands for the checkpoint
+        with monkeypatch.context() as patch:
+            def killed(self, missing_ok=False):
+                raise KeyboardInterrupt("killed")
+
+            patch.setattr(Path, "unlink", killed)
+            with pytest.raises(KeyboardInterrupt):
+                run.finish(result)
+        assert run.done and run.checkpoint.exists() and run.progress.exists()
+    results = {p: p.read_text() for p in folder.glob("**/result.json")}
+    _run_study(folder)
+    assert not list(folder.rglob("checkpoint*")) and not list(folder.rglob("progress.json"))
+    assert {p: p.read_text() for p in folder.glob("**/result.json")} == results  # done: nothing ran again

@@ -23,9 +23,10 @@ import ray
 import torch as th
 
 from sb3_cic.cli import main
-from sb3_cic.protocol import Settings, run_protocol
+from sb3_cic.protocol import Settings, check_study_settings, run_protocol
+from sb3_cic.study.checkpoint import RunFolder
 from sb3_cic.study.engine import run_study
-from sb3_cic.study.graph import status_report
+from sb3_cic.study.graph import build_graph, settings_use, status_report
 
 
 SETTINGS = Settings(
@@ -302,3 +303,38 @@ def test_fine_tuning_from_an_intermediate_snapshot(ray_instance, tmp_path: Path,
     assert [s["run"] for s in statuses] == ["cic walker_stand seed 0"]
     text, finished = status_report(study)
     assert finished and "4 runs, 4 done" in text and "| cic | walker | 3 | 0 | 0 | 0 |" in text
+
+
+def test_a_done_run_killed_before_deleting_its_checkpoint_is_cleaned(study: Path, tmp_path: Path):
+    """A run killed between writing ``result.json`` and deleting its checkpoint is done: the study does not run it
+    again and deletes its checkpoint and ``progress.json``."""
+    folder = tmp_path / "study"
+    shutil.copytree(study, folder)
+    run = RunFolder(folder / "finetune" / "cic" / "walker_flip" / "seed_1")
+    run._write_progress(1000)  # what the killed run left beside its result.json
+    run.checkpoint.write_bytes(b"PK\x05\x06" + b"\0" * 18)
+    results = {p: p.read_text() for p in folder.glob("**/result.json")}
+    runs, statuses = run_study(folder, ["cic", "ddpg"], ["walker"], list(TASKS), list(SEEDS), SETTINGS, progress_bar=False)
+    assert len(runs) == 9 and statuses == []
+    assert not run.checkpoint.exists() and not run.progress.exists()
+    assert {p: p.read_text() for p in folder.glob("**/result.json")} == results
+    assert status_report(folder)[1]
+
+
+def test_runs_from_scratch_are_not_checked_against_pre_training_settings(study: Path, tmp_path: Path):
+    """A DDPG command into a study whose pre-trainings used other steps, snapshots and seed: accepted (DDPG does not
+    pre-train); a command that pre-trains is still held to them."""
+    folder = tmp_path / "study"
+    shutil.copytree(study, folder)
+    other = replace(SETTINGS, pretrain_steps=5000, snapshots=(700,))
+    ddpg = build_graph(["ddpg"], ["walker"], list(TASKS), list(SEEDS), pretrain_seed=3)
+    check_study_settings(folder, other, 3, **settings_use(ddpg))
+    recorded = (folder / "study.json").read_text()
+    runs, statuses = run_study(folder, ["ddpg"], ["walker"], list(TASKS), list(SEEDS), other, pretrain_seed=3,
+                               progress_bar=False)
+    assert len(runs) == 4 and statuses == [] and json.loads((folder / "study.json").read_text()) == json.loads(recorded)
+    cic = build_graph(["cic"], ["walker"], list(TASKS), list(SEEDS), pretrain_seed=3)
+    with pytest.raises(ValueError, match="pretrain_steps.*1000, 5000.*pretrain_seed.*0, 3"):
+        check_study_settings(folder, other, 3, **settings_use(cic))
+    with pytest.raises(ValueError, match="hidden_dim.*32, 64"):
+        run_study(folder, ["ddpg"], ["walker"], list(TASKS), list(SEEDS), replace(SETTINGS, hidden_dim=64), progress_bar=False)

@@ -4,7 +4,8 @@ A run folder holds, besides what the run produces (``result.json``, ``eval.csv``
 
 * ``checkpoint.zip`` while the run is unfinished: the run's whole state at an episode boundary,
   written to ``checkpoint.tmp`` and renamed (a kill during a write leaves the previous checkpoint);
-  deleted once ``result.json`` is written;
+  deleted once ``result.json`` is written (a run killed in between is done: :meth:`RunFolder.clean` deletes
+  what it left when the run is next seen);
 * ``progress.json`` while the run is unfinished: who runs it (host, pid) and its last checkpoint step;
 * ``error.txt`` when the run raised: the traceback.
 
@@ -118,13 +119,24 @@ class RunFolder:
         )
 
     def finish(self, result: dict[str, Any]) -> None:
-        """Write ``result.json``, then delete the checkpoint and ``progress.json``.
+        """Write ``result.json``, then delete the checkpoint and ``progress.json`` (:meth:`clean`).
 
         :param result: the run's result
         """
         write_json(self.result, result)
-        for path in (self.checkpoint, self.checkpoint_tmp, self.progress, self.error):
+        self.clean()
+
+    def clean(self) -> list[Path]:
+        """Delete what a done run has no use for (checkpoint, ``progress.json``, ``error.txt``), as left by a run
+        killed between writing ``result.json`` and deleting them; return what was deleted. An unfinished run is
+        left as it is.
+        """
+        if not self.done:
+            return []
+        leftovers = [path for path in (self.checkpoint, self.checkpoint_tmp, self.progress, self.error) if path.exists()]
+        for path in leftovers:
             path.unlink(missing_ok=True)
+        return leftovers
 
     def fail(self, traceback: str) -> None:
         """Record the run as failed: ``error.txt`` holds the traceback (the checkpoint stays, to resume from).

@@ -34,21 +34,22 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``sb3-cic study``; returns the exit code: 0 when every run of the command is done."""
+    """``sb3-cic study``; returns the exit code: 0 when every run of the command is done.
+
+    Bad input is a ``ValueError`` before anything is written or run (:func:`~sb3_cic.study.engine.run_study`);
+    :func:`sb3_cic.cli.main` reports it in one line.
+    """
     from sb3_cic.study.engine import run_study
     from sb3_cic.study.graph import status_report
 
     args = build_parser().parse_args(argv)
-    try:
-        settings = settings_from_args(args)
-        runs, statuses = run_study(
-            args.study, args.methods, args.domains, args.tasks, args.seeds, settings,
-            pretrain_seed=args.pretrain_seed, address=args.address, workers=args.workers,
-            cpus_per_run=args.cpus_per_run, gpus_per_run=args.gpus_per_run, max_retries=args.max_retries,
-            progress_bar=not args.no_progress, from_snapshot=args.from_snapshot,
-        )
-    except ValueError as error:
-        raise SystemExit(f"sb3-cic study: error: {error}") from None
+    settings = settings_from_args(args)
+    runs, statuses = run_study(
+        args.study, args.methods, args.domains, args.tasks, args.seeds, settings,
+        pretrain_seed=args.pretrain_seed, address=args.address, workers=args.workers,
+        cpus_per_run=args.cpus_per_run, gpus_per_run=args.gpus_per_run, max_retries=args.max_retries,
+        progress_bar=not args.no_progress, from_snapshot=args.from_snapshot,
+    )
     report, finished = status_report(args.study)
     print(report)
     print(f"{len(statuses)} runs ran now; report: sb3-cic report {args.study}")
@@ -56,15 +57,13 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def status_main(argv: Sequence[str] | None = None) -> int:
-    """``sb3-cic status STUDY``; returns the exit code: 0 when every run of the study is done."""
+    """``sb3-cic status STUDY``; returns the exit code: 0 when every run of the study is done (a ``ValueError`` if
+    the folder is no study)."""
     from sb3_cic.study.graph import status_report
 
     parser = argparse.ArgumentParser(prog="sb3-cic status", description="Runs done / running / failed / pending of a study.")
     parser.add_argument("study", help="study folder")
     args = parser.parse_args(argv)
-    try:
-        report, finished = status_report(args.study)
-    except ValueError as error:
-        raise SystemExit(f"sb3-cic status: error: {error}") from None
+    report, finished = status_report(args.study)
     print(report)
     return 0 if finished else 1

@@ -20,7 +20,7 @@ from tqdm.auto import tqdm
 from sb3_cic import protocol
 from sb3_cic.protocol import Settings, check_study_settings, record_study_settings
 from sb3_cic.study.checkpoint import RunFolder
-from sb3_cic.study.graph import Run, build_graph, check_study, record_runs
+from sb3_cic.study.graph import Run, build_graph, check_study, record_runs, settings_use
 
 
 def execute(
@@ -185,10 +185,12 @@ def run_study(
         raise ValueError(f"fine-tuning from the snapshot at {from_snapshot} steps needs it among the intermediate "
                          f"snapshots (--snapshots {' '.join(map(str, settings.snapshots))}); the final one is the default")
     runs = build_graph(methods, domains, tasks, seeds, pretrain_seed, from_snapshot)
-    check_study_settings(study, settings, pretrain_seed)
+    check_study_settings(study, settings, pretrain_seed, **settings_use(runs))
     todo = check_study(study, runs, pretrain_seed)
-    record_study_settings(study, settings, pretrain_seed)
+    record_study_settings(study, settings, pretrain_seed, **settings_use(runs))
     record_runs(study, runs)
+    for run in runs:  # a done run killed just after writing its result.json: what it left is deleted
+        RunFolder(run.folder(study)).clean()
     if not todo:
         return runs, []
     started = not ray.is_initialized()

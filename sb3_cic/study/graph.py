@@ -146,6 +146,15 @@ def build_graph(
     return runs
 
 
+def settings_use(runs: Sequence[Run]) -> dict[str, Any]:
+    """What a command's runs use, as :func:`~sb3_cic.protocol.check_study_settings` takes it: whether they pre-train
+    (``pretrained``) and the yaml of each method (``configs``: the default ``zoo_configs/<method>.yml``).
+
+    :param runs: the command's runs (:func:`build_graph`)
+    """
+    return {"pretrained": any(run.task is None for run in runs), "configs": {run.method: None for run in runs}}
+
+
 def check_study(study: str | Path, runs: Sequence[Run], pretrain_seed: int) -> list[Run]:
     """Check the study folder's runs against a command, before anything runs; return the runs still to do.
 
