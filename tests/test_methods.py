@@ -107,8 +107,9 @@ def test_pretraining_on_an_env_with_its_own_reward_warns_once(tiny):
     for env_id in ("Pendulum-v1", "URLB/point_mass-reach-v0"):
         with pytest.warns(UserWarning) as record:
             model = CIC("MlpPolicy", env_id, **tiny)
-        said = [str(w.message) for w in record if "reward is ignored" in str(w.message)]
-        assert len(said) == 1 and env_id in said[0] and "reward_free=False" in said[0]
+        said = [w for w in record if "reward is ignored" in str(w.message)]
+        assert len(said) == 1 and env_id in str(said[0].message) and "reward_free=False" in str(said[0].message)
+        assert said[0].filename == __file__  # it points at the line that built the model
         model.learn(10)  # no second word while training
     with warnings.catch_warnings():
         warnings.filterwarnings("error", message=".*reward is ignored")

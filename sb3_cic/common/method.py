@@ -4,6 +4,7 @@ choice, kept critic layers) and how the model builds them."""
 from __future__ import annotations
 
 import inspect
+import sys
 import warnings
 from typing import Any, ClassVar
 
@@ -124,12 +125,15 @@ class MethodMixin:
         pretraining = reward_free if reward_free is not None else self.reward_module_class is not None
         if pretraining and not is_reward_free_env(env):
             name = type(self).__name__
+            frame, level = sys._getframe(1), 2  # the warning points at the line that built the model
+            while frame.f_back is not None and frame.f_code.co_name == "__init__" and frame.f_locals.get("self") is self:
+                frame, level = frame.f_back, level + 1
             warnings.warn(
                 f"{name} pre-trains reward-free on {env_id_of(env) or type(env).__name__}: the env's reward is ignored "
                 f"(replaced by {name}'s intrinsic reward). Pass reward_free=False to learn from it, or fine-tune a "
                 f"pre-trained model with {name}.load_pretrained",
                 UserWarning,
-                stacklevel=4,
+                stacklevel=level,
             )
 
     def make_reward_module(self) -> RewardModule | None:
