@@ -44,6 +44,7 @@ from sb3_cic.study.layout import (
     pretrain_dir,
     run_label,
     snapshot_file,
+    study_file,
     task_env_id,
     task_name,
 )
@@ -182,7 +183,7 @@ def check_study_settings(
         wanted["pretrain_seed"] = pretrain_seed
     if configs:
         wanted["conf_files"] = {method: conf_file_record(method, config) for method, config in configs.items()}
-    path = Path(study) / "study.json"
+    path = study_file(study)
     if not path.exists():  # a new study (or one made before study.json existed: recorded as it goes on)
         return wanted
     try:
@@ -221,7 +222,7 @@ def record_study_settings(
     """Check (:func:`check_study_settings`, same arguments), then write into ``<study>/study.json`` the settings
     it does not record yet (its runs are kept)."""
     wanted = check_study_settings(study, settings, pretrain_seed, pretrained, configs)
-    path = Path(study) / "study.json"
+    path = study_file(study)
     data = json.loads(path.read_text()) if path.exists() else {}
     if {**data, **wanted} != data:
         path.parent.mkdir(parents=True, exist_ok=True)
