@@ -64,20 +64,16 @@ class URLBDDPG(MethodMixin, SkillMixin, DDPG):
     :param gamma: discount factor
     :param train_freq: env steps between updates
     :param gradient_steps: updates per ``train_freq``
-    :param action_noise: exploration noise of the actions taken in the env (SB3's ``ActionNoise``); default:
-        URLB's ``N(0, exploration_std^2)`` (:class:`~stable_baselines3.common.noise.NormalActionNoise`). It
-        replaces that noise in acting only: the target action and the actor loss keep URLB's clipped
-        ``exploration_std`` noise
+    :param action_noise: exploration noise of the actions taken in the env (default: URLB's
+        ``N(0, exploration_std^2)``); the target action and the actor loss keep URLB's clipped noise
     :param replay_buffer_class: a subclass of :class:`~sb3_cic.buffers.URLBReplayBuffer` (the default)
     :param replay_buffer_kwargs: extra arguments of :class:`~sb3_cic.buffers.URLBReplayBuffer`
-    :param optimize_memory_usage: not supported (``ValueError`` if True): URLB's n-step buffer keeps next
-        observations; lower ``buffer_size`` to save memory
+    :param optimize_memory_usage: not supported (``ValueError`` if True; lower ``buffer_size`` instead)
     :param n_steps: n of the n-step return
     :param exploration_std: std of the gaussian exploration noise
     :param exploration_clip: clip of that noise for the target action and the actor loss
-    :param reward_free: pre-training mode: train the reward module and use its reward (default: True for a
-        method with a reward module; on an env other than ``URLB/<domain>-v0`` a warning says that the env's
-        reward is ignored)
+    :param reward_free: pre-training: train the reward module and use its reward (default: True for a method
+        with a reward module; a warning says so on an env other than ``URLB/<domain>-v0``)
     :param skill_prior: skill prior (default: the method's :attr:`skill_prior_class`, of size ``skill_dim``)
     :param skill_dim: size of the method's skill (default: its prior's)
     :param skill_resample_every: skill resampling period of the skill wrapper
@@ -274,8 +270,7 @@ class URLBDDPG(MethodMixin, SkillMixin, DDPG):
         self, replay_buffer: ReplayBuffer, buffer_action: np.ndarray, new_obs: np.ndarray, reward: np.ndarray,
         dones: np.ndarray, infos: list[dict[str, Any]],
     ) -> None:
-        """SB3's, after :func:`~sb3_cic.common.env_util.check_finite_step`: a non-finite observation or reward is a
-        ``ValueError`` naming the step before anything is stored."""
+        """SB3's, after :func:`~sb3_cic.common.env_util.check_finite_step` (a non-finite value: ``ValueError``)."""
         check_finite_step(self.num_timesteps, new_obs, reward, infos)
         super()._store_transition(replay_buffer, buffer_action, new_obs, reward, dones, infos)
 
