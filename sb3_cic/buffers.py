@@ -5,12 +5,14 @@ from __future__ import annotations
 from typing import Any, Callable
 
 import numpy as np
+import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.buffers import NStepReplayBuffer
 from stable_baselines3.common.type_aliases import ReplayBufferSamples
 from stable_baselines3.common.vec_env import VecNormalize
 
-Relabel = Callable[[ReplayBufferSamples], ReplayBufferSamples]
+#: the relabel hook: a sampled batch -> the batch with its intrinsic reward, and the reward module's metrics
+Relabel = Callable[[ReplayBufferSamples], tuple[ReplayBufferSamples, dict[str, th.Tensor]]]
 
 
 class URLBReplayBuffer(NStepReplayBuffer):
@@ -21,8 +23,9 @@ class URLBReplayBuffer(NStepReplayBuffer):
       ends are truncations and bootstrap.
     * The next observation of a sampled transition carries the skill of its observation, even when
       the skill was resampled within the n steps.
-    * ``relabel``: a hook installed by the algorithm in pre-training; it receives every sampled batch
-      and returns it with the intrinsic reward in place of the stored reward. It is never pickled.
+    * ``relabel``: a hook installed by the algorithm in pre-training, a tensor function that the update step
+      applies to each sampled batch (:meth:`sample` does not): it returns the batch with the intrinsic reward in
+      place of the stored reward, and its metrics. It is never pickled.
     * Observations are stored as float32 whatever the Box's dtype (float64 for most Gymnasium MuJoCo
       envs): the one cast of the training path (SB3 casts each batch in the networks), and half the memory.
 
@@ -58,10 +61,6 @@ class URLBReplayBuffer(NStepReplayBuffer):
         if self.skill_dim > 0:
             samples.next_observations[:, -self.skill_dim :] = samples.observations[:, -self.skill_dim :]
         return samples
-
-    def sample(self, batch_size: int, env: VecNormalize | None = None) -> ReplayBufferSamples:
-        samples = super().sample(batch_size, env)
-        return samples if self.relabel is None else self.relabel(samples)
 
     def transition_nbytes(self) -> int:
         """Bytes stored per transition (all arrays, one environment)."""

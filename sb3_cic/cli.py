@@ -10,7 +10,8 @@
 * ``skills``: a pre-trained policy under several skills, as one grid video and a plot (:mod:`sb3_cic.skill_video`).
 
 Options ``train`` and ``finetune`` add to rl-zoo's: ``--small`` (CPU-sized hyperparameters,
-:data:`sb3_cic.zoo.SMALL_HYPERPARAMS`); ``--eval-freq`` and ``--eval-episodes`` configure the yaml's
+:data:`sb3_cic.zoo.SMALL_HYPERPARAMS`); ``--compile`` (``compile_update=True``) and ``--tf32``
+(:func:`~sb3_cic.common.fast_update.enable_tf32`); ``--eval-freq`` and ``--eval-episodes`` configure the yaml's
 :class:`~sb3_cic.callbacks.URLBEvalCallback` (rl-zoo's own EvalCallback is off, ``--eval-freq -1``);
 the grid sweep of the yaml's :class:`~sb3_cic.callbacks.SkillGridSweepCallback` follows ``learning_starts``.
 
@@ -34,6 +35,7 @@ import gymnasium as gym
 import yaml
 
 from sb3_cic import zoo
+from sb3_cic.common.fast_update import enable_tf32
 
 USAGE = """usage: sb3-cic {train,finetune,enjoy,record-video,protocol,study,status,report,skills} [options]
 
@@ -84,11 +86,14 @@ def _zoo_args(argv: Sequence[str], finetune: bool) -> tuple[list[str], str, str,
     parser.add_argument("--eval-freq", type=int, default=None)
     parser.add_argument("--eval-episodes", type=int, default=None)
     parser.add_argument("-f", "--log-folder", default="logs")
+    parser.add_argument("--compile", action="store_true")
+    parser.add_argument("--tf32", action="store_true")
     known, rest = parser.parse_known_args(list(argv))
     if known.env is None or "-h" in rest or "--help" in rest:
         print(
             "sb3-cic options: --small (CPU-sized hyperparameters), --eval-freq N and --eval-episodes N (the yaml's "
-            "URLBEvalCallback), --conf-file (default zoo_configs/<algo>.yml), -f/--log-folder (default logs)"
+            "URLBEvalCallback), --conf-file (default zoo_configs/<algo>.yml), -f/--log-folder (default logs), "
+            "--compile (compile_update=True: the update compiled as one graph), --tf32 (TF32 matrix products on CUDA)"
             + (", -i <pre-trained model.zip> (required)" if finetune else "")
             + ". rl-zoo's train options follow.\n"
         )
@@ -110,6 +115,10 @@ def _zoo_args(argv: Sequence[str], finetune: bool) -> tuple[list[str], str, str,
             if not model.endswith(".zip") or not os.path.isfile(model):
                 raise ValueError(f"{key} {model}: no saved model (.zip) there")
     overrides = {**(zoo.SMALL_HYPERPARAMS if known.small else {}), **zoo.parse_hyperparams(known.hyperparams)}
+    if known.compile:
+        overrides["compile_update"] = True
+    if known.tf32:
+        enable_tf32()
     overrides = zoo.zoo_overrides(config, known.env, overrides, known.eval_freq, known.eval_episodes)
     args = ["--algo", algo, "--env", known.env, "--conf-file", config, "-f", known.log_folder, "--eval-freq", "-1", *rest]
     if overrides:

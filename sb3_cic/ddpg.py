@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import operator
 from functools import reduce
-from typing import Any, ClassVar, TypeVar
+from typing import Any, Callable, ClassVar, TypeVar
 
 import numpy as np
 import torch as th
@@ -18,6 +18,7 @@ from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, ReplayB
 from sb3_cic.buffers import URLBReplayBuffer
 from sb3_cic.common.arguments import check_ddpg_arguments, check_range
 from sb3_cic.common.env_util import check_finite_step, env_id_of, prepare_env
+from sb3_cic.common.fast_update import UpdateMetrics, compiled_step
 from sb3_cic.common.method import MethodMixin
 from sb3_cic.common.save_util import SavedModel, package_version, read_saved_data
 from sb3_cic.common.skill_mixin import SkillMixin
@@ -26,6 +27,7 @@ from sb3_cic.policies import URLBPolicy, min_q, normalize_policy_kwargs
 from sb3_cic.rewards.base import RewardModule
 from sb3_cic.skills import SkillPrior
 from sb3_cic.speed import lean_action, speed_options
+from sb3_cic.tensor_buffer import TensorReplayBuffer
 
 SelfURLBDDPG = TypeVar("SelfURLBDDPG", bound="URLBDDPG")
 
@@ -44,8 +46,10 @@ class URLBDDPG(MethodMixin, SkillMixin, DDPG):
     A method (``sb3_cic.methods``) is this class plus four parts, declared as class attributes
     (:class:`~sb3_cic.common.method.MethodMixin`): a skill prior (the env is wrapped with
     :class:`~envs.SkillObservationWrapper`), a reward module, a fine-tuning skill choice, the critic layers
-    that fine-tuning keeps. In pre-training (``reward_free=True``) the replay buffer's relabel hook trains
-    the reward module on every sampled batch and replaces the batch's reward with the intrinsic reward.
+    that fine-tuning keeps. One update is one step on a sampled batch (:meth:`_step`): in pre-training
+    (``reward_free=True``) the replay buffer's relabel hook trains the reward module on the batch and replaces
+    its reward with the intrinsic reward; then the critic, actor and target steps. The step's metrics stay on the
+    device until SB3 dumps its logs (``train/`` and ``reward/`` keys: means over the updates since the last dump).
     Fine-tuning starts with :meth:`load_pretrained`. A non-finite observation or reward from the env is a
     ``ValueError`` before it is stored.
 
@@ -66,7 +70,8 @@ class URLBDDPG(MethodMixin, SkillMixin, DDPG):
     :param gradient_steps: updates per ``train_freq``
     :param action_noise: exploration noise of the actions taken in the env (default: URLB's
         ``N(0, exploration_std^2)``); the target action and the actor loss keep URLB's clipped noise
-    :param replay_buffer_class: a subclass of :class:`~sb3_cic.buffers.URLBReplayBuffer` (the default)
+    :param replay_buffer_class: a subclass of :class:`~sb3_cic.buffers.URLBReplayBuffer` (the default; with
+        ``compile_update`` it is replaced by :class:`~sb3_cic.tensor_buffer.TensorReplayBuffer`, on the model's device)
     :param replay_buffer_kwargs: extra arguments of :class:`~sb3_cic.buffers.URLBReplayBuffer`
     :param optimize_memory_usage: not supported (``ValueError`` if True; lower ``buffer_size`` instead)
     :param n_steps: n of the n-step return
@@ -78,6 +83,9 @@ class URLBDDPG(MethodMixin, SkillMixin, DDPG):
     :param skill_dim: size of the method's skill (default: its prior's)
     :param skill_resample_every: skill resampling period of the skill wrapper
     :param finetune_skill_choice: one of the method's :attr:`finetune_skill_choices` (default: the first)
+    :param compile_update: run the update step compiled as one graph (:func:`~sb3_cic.common.fast_update.compile_step`;
+        the same math, equal to float rounding); the first update compiles it. True, or a dict of
+        ``torch.compile`` arguments (``{"backend": "aot_eager"}``, ``{"mode": "max-autotune"}``)
     :param stats_window_size: episodes averaged in the rollout logs
     :param tensorboard_log: tensorboard log folder
     :param policy_kwargs: policy arguments: ``hidden_dim`` (or SB3's ``net_arch=[h, h]``), ``n_critics`` (2)
@@ -94,6 +102,8 @@ class URLBDDPG(MethodMixin, SkillMixin, DDPG):
 
     #: freeze the critic's weights during the actor step (no weight gradients; same actor update)
     freeze_critic_in_actor_step: bool = True
+    #: the ``compile_update`` argument (a class default for models saved before it existed)
+    compile_update: bool | dict[str, Any] = False
 
     def __init__(
         self,
@@ -119,6 +129,7 @@ class URLBDDPG(MethodMixin, SkillMixin, DDPG):
         skill_dim: int | None = None,
         skill_resample_every: int | None = 50,
         finetune_skill_choice: str | None = None,
+        compile_update: bool | dict[str, Any] = False,
         stats_window_size: int = 100,
         tensorboard_log: str | None = None,
         policy_kwargs: dict[str, Any] | None = None,
@@ -153,6 +164,7 @@ class URLBDDPG(MethodMixin, SkillMixin, DDPG):
         self.exploration_clip = exploration_clip
         self.skill_resample_every = skill_resample_every
         self.reward_free = reward_free
+        self.compile_update = compile_update
         #: act with the policy (instead of uniformly) during the first ``learning_starts`` steps
         self.warmup_with_policy = False
         self.finetune_skill: np.ndarray | None = None
@@ -168,6 +180,8 @@ class URLBDDPG(MethodMixin, SkillMixin, DDPG):
             self.action_noise = NormalActionNoise(np.zeros(shape), np.full(shape, self.exploration_std))
         extra = {"n_steps": self.n_steps, "gamma": self.gamma, "skill_dim": self.skill_dim}
         self.replay_buffer_kwargs = {**self.replay_buffer_kwargs, **extra}
+        if self.compile_update and self.replay_buffer_class is URLBReplayBuffer:
+            self.replay_buffer_class = TensorReplayBuffer
         n_steps, self.n_steps = self.n_steps, 1  # n-step returns are configured on our buffer
         super()._setup_model()
         self.n_steps = n_steps
@@ -181,6 +195,8 @@ class URLBDDPG(MethodMixin, SkillMixin, DDPG):
             raise ValueError(f"{type(self).__name__} has no intrinsic reward module: reward_free must be False")
         self._critic_params = list(self.critic.parameters())
         self._critic_target_params = list(self.critic_target.parameters())
+        self._update_metrics = UpdateMetrics()
+        self._compiled_step: Callable[[ReplayBufferSamples], dict[str, th.Tensor]] | None = None
         self._install_relabel()
 
     def _install_relabel(self) -> None:
@@ -191,13 +207,14 @@ class URLBDDPG(MethodMixin, SkillMixin, DDPG):
         self._install_relabel()
 
     # the update (the one statement of the math) -------------------------------------------------
-    def _relabel(self, data: ReplayBufferSamples) -> ReplayBufferSamples:
+    def _relabel(self, data: ReplayBufferSamples) -> tuple[ReplayBufferSamples, dict[str, th.Tensor]]:
+        """The relabel hook of pre-training: one update of the reward module on ``data``, and ``data`` with its
+        intrinsic reward; also the module's metrics."""
         assert self.reward_module is not None
         reward, metrics = self.reward_module.update_and_reward(data)
         metrics["intrinsic_reward_mean"] = reward.mean()
         metrics["intrinsic_reward_std"] = reward.std()
-        self._reward_metrics = metrics
-        return data._replace(rewards=reward)
+        return data._replace(rewards=reward), metrics
 
     def _noisy(self, mu: th.Tensor) -> th.Tensor:
         """``mu`` plus clipped gaussian noise, clamped to (-1, 1) with a straight-through gradient."""
@@ -225,7 +242,10 @@ class URLBDDPG(MethodMixin, SkillMixin, DDPG):
         critic_loss.backward()
         self.critic.optimizer.step()
 
-        frozen = self._critic_params if self.freeze_critic_in_actor_step else []
+        # (a compiled step cannot switch requires_grad: the critic's weight gradients of the actor step are dropped
+        # by the next critic step's zero_grad instead, the same update)
+        freeze = self.freeze_critic_in_actor_step and not th.compiler.is_compiling()
+        frozen = self._critic_params if freeze else []
         for param in frozen:  # no critic weight gradients in the actor step
             param.requires_grad_(False)
         actor_loss = self.actor_loss(data.observations)
@@ -239,23 +259,41 @@ class URLBDDPG(MethodMixin, SkillMixin, DDPG):
             th._foreach_lerp_(self._critic_target_params, self._critic_params, self.tau)
         return {"critic_loss": critic_loss.detach(), "actor_loss": actor_loss.detach(), "target_q": target_q}
 
+    def _step(self, data: ReplayBufferSamples) -> dict[str, th.Tensor]:
+        """One update on a sampled batch: the relabel hook (pre-training), then :meth:`_update`.
+
+        A function of the batch and the networks' state: it returns 0-d tensors and never waits for the device,
+        so that ``compile_update`` compiles it as it is.
+        """
+        metrics: dict[str, th.Tensor] = {}
+        relabel = self.replay_buffer.relabel
+        if relabel is not None:
+            data, reward_metrics = relabel(data)
+            metrics.update({f"reward/{key}": value for key, value in reward_metrics.items()})
+        metrics.update({f"train/{key}": value for key, value in self._update(data).items()})
+        if th.compiler.is_compiling():  # every compiled step starts without gradients (else it recompiles)
+            for module in (self.policy, self.reward_module):
+                for param in module.parameters() if module is not None else ():
+                    param.grad = None
+        return metrics
+
     def train(self, gradient_steps: int, batch_size: int = 100) -> None:
         if not (speed_options.lean_acting and self.policy.training):  # lean acting leaves the policy in training mode
             self.policy.set_training_mode(True)
         self._update_learning_rate([self.actor.optimizer, self.critic.optimizer])
+        step = compiled_step(self) if self.compile_update else self._step
         for _ in range(gradient_steps):
             self._n_updates += 1
             data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[union-attr]
-            metrics = self._update(data)
-
+            self._update_metrics.add(step(data))
         self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
-        for key, value in metrics.items():
-            self.logger.record(f"train/{key}", value.item())
-        if self.reward_free:
-            for key, value in self._reward_metrics.items():
-                self.logger.record(f"reward/{key}", value.item())
+
+    def dump_logs(self) -> None:
+        """SB3's, after recording the updates' metrics (means since the last dump) and the share of fixed skills."""
+        self._update_metrics.record(self.logger)
         if self.skill_prior is not None and self.env is not None:
             self.logger.record("train/skill_fixed", float(np.mean(self.env.get_attr("fixed"))))
+        super().dump_logs()
 
     # acting -------------------------------------------------------------------------------------
     def _sample_action(self, learning_starts: int, action_noise: Any = None, n_envs: int = 1) -> tuple[np.ndarray, np.ndarray]:
@@ -297,7 +335,7 @@ class URLBDDPG(MethodMixin, SkillMixin, DDPG):
 
     # save / load / fine-tune --------------------------------------------------------------------
     def _excluded_save_params(self) -> list[str]:
-        excluded = ["reward_module", "_critic_params", "_critic_target_params", "_reward_metrics"]
+        excluded = ["reward_module", "_critic_params", "_critic_target_params", "_update_metrics", "_compiled_step"]
         return [*super()._excluded_save_params(), *excluded]
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:

@@ -33,6 +33,7 @@ from stable_baselines3.common.utils import set_random_seed
 from envs.tasks import DOMAIN_TASKS
 from sb3_cic import zoo
 from sb3_cic.callbacks import SkillGridSweepCallback, URLBEvalCallback
+from sb3_cic.common.fast_update import enable_tf32
 from sb3_cic.common.resumable import ResumableCallback
 from sb3_cic.constants import EXPERT_SCORES
 from sb3_cic.finetune import finetune_callbacks
@@ -68,6 +69,8 @@ class Settings:
     :param snapshots: pre-training steps at which a snapshot is saved (the final step always is)
     :param device: torch device
     :param num_threads: torch threads (None: torch's default)
+    :param compile_update: compile each run's update step (``compile_update=True``; the same math to float rounding)
+    :param tf32: TF32 matrix products on CUDA (:func:`~sb3_cic.common.fast_update.enable_tf32`)
     :param progress_bar: show SB3's progress bar
     :param verbose: verbosity of the algorithms
     :param pretrain_checkpoint_every: steps between the checkpoints of a pre-training (0: none)
@@ -85,6 +88,8 @@ class Settings:
     snapshots: tuple[int, ...] = DEFAULT_SNAPSHOTS
     device: str = "auto"
     num_threads: int | None = None
+    compile_update: bool = False
+    tf32: bool = False
     progress_bar: bool = False
     verbose: int = 0
     pretrain_checkpoint_every: int = 50_000
@@ -114,6 +119,8 @@ class Settings:
                 out[key] = getattr(self, key)
         if self.hidden_dim is not None and not finetune:  # a fine-tuned model keeps its saved width
             out["policy_kwargs"] = {"hidden_dim": self.hidden_dim}
+        if self.compile_update:
+            out["compile_update"] = True
         return out
 
 
@@ -276,6 +283,8 @@ def _describe(hyperparams: dict[str, Any]) -> dict[str, str]:
 def _set_threads(settings: Settings) -> None:
     if settings.num_threads:
         th.set_num_threads(settings.num_threads)
+    if settings.tf32:
+        enable_tf32()
 
 
 class SnapshotCallback(ResumableCallback):
@@ -602,6 +611,8 @@ def add_settings_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--device", default="auto")
     parser.add_argument("--num-threads", type=int, default=None)
+    parser.add_argument("--compile", action="store_true", help="compile_update=True: each update compiled as one graph")
+    parser.add_argument("--tf32", action="store_true", help="TF32 matrix products on CUDA (off by default)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--verbose", type=int, default=0)
 
@@ -624,6 +635,8 @@ def settings_from_args(args: argparse.Namespace) -> Settings:
         snapshots=tuple(args.snapshots),
         device=args.device,
         num_threads=args.num_threads,
+        compile_update=args.compile,
+        tf32=args.tf32,
         progress_bar=not args.no_progress,
         verbose=args.verbose,
         pretrain_checkpoint_every=every[0],

@@ -49,12 +49,16 @@ class SpeedOptions:
         calling each layer as a module (``nn.Module.__call__`` costs a few microseconds per layer: one acting
         step at hidden 256 took 170.5 us instead of 185.3 us on this project's CPU); the same kernels on the
         same inputs, so the same outputs, bit for bit. A layer with hooks is still called as a module
+    :param lean_loop: the acting loop (``collect_rollouts``) of :class:`~sb3_cic.common.rollout.LeanRolloutMixin`:
+        SB3's loop step for step with less work per env step around the action, the env step and the
+        stored transition; the same actions, transitions, callbacks and statistics
     """
 
     lean_adam: bool = True
     knn_partition: bool = True
     lean_acting: bool = True
     lean_forward: bool = True
+    lean_loop: bool = True
 
     @contextmanager
     def override(self, **flags: bool) -> Iterator[SpeedOptions]:
@@ -126,9 +130,49 @@ class FusedAdam(th.optim.Adam):
                 groups.append((group, params, base))
         return groups
 
+    def init_state(self) -> None:
+        """Create the state that torch's first step creates (zero moments, step 0) where a parameter has none.
+
+        A compiled update (``compile_update=True``) finds its optimisers' state in place: it cannot create it.
+        """
+        for group in self.param_groups:
+            for p in group["params"]:
+                state = self.state[p]
+                if "step" not in state:
+                    state["step"] = th.zeros((), dtype=th.float32, device=p.device)  # torch's fused Adam's
+                    state["exp_avg"] = th.zeros_like(p, memory_format=th.preserve_format)
+                    state["exp_avg_sq"] = th.zeros_like(p, memory_format=th.preserve_format)
+
+    def _traced_step(self) -> None:
+        """Adam's step in tensor operations that ``torch.compile`` traces (torch's ``step`` breaks the graph).
+
+        torch's single-tensor Adam with the step counter as a tensor on the parameter's device (as ``capturable``
+        Adam keeps it): the same update as the fused kernel to float rounding, on the same state. Called while
+        compiling; the state must exist (:meth:`init_state`).
+        """
+        for group in self.param_groups:
+            beta1, beta2 = group["betas"]
+            lr, eps, weight_decay = group["lr"], group["eps"], group["weight_decay"]
+            for p in group["params"]:
+                if p.grad is None:
+                    continue
+                grad = -p.grad if group["maximize"] else p.grad
+                if weight_decay != 0:
+                    grad = grad.add(p, alpha=weight_decay)
+                state = self.state[p]
+                step, exp_avg, exp_avg_sq = state["step"], state["exp_avg"], state["exp_avg_sq"]
+                step.add_(1)
+                exp_avg.lerp_(grad, 1 - beta1)
+                exp_avg_sq.mul_(beta2).addcmul_(grad, grad, value=1 - beta2)
+                denom = (exp_avg_sq.sqrt() / (1 - beta2**step).sqrt()).add_(eps)
+                p.sub_(exp_avg / denom * (lr / (1 - beta1**step)))
+
     @th.no_grad()
     def step(self, closure: Callable[[], float] | None = None) -> float | None:  # type: ignore[override]
         """One Adam step (see the class docstring for when torch's own ``step`` runs instead)."""
+        if th.compiler.is_compiling():
+            self._traced_step()
+            return None
         groups = None if closure is not None else self._lean_groups()
         if groups is None:
             return super().step(closure)
@@ -157,7 +201,7 @@ class FusedAdam(th.optim.Adam):
 
     def zero_grad(self, set_to_none: bool = True) -> None:
         """Drop the gradients (``set_to_none``, as torch's default) with a plain loop; else torch's ``zero_grad``."""
-        if not set_to_none or not speed_options.lean_adam:
+        if not th.compiler.is_compiling() and (not set_to_none or not speed_options.lean_adam):
             return super().zero_grad(set_to_none)
         for group in self.param_groups:
             for p in group["params"]:

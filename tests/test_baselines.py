@@ -263,8 +263,9 @@ def test_pretrain_save_load_finetune(name, tmp_path, recwarn):
     model = cls("MlpPolicy", pretrain_env, **SMALL, **EXTRA[name])
     model.learn(2000)
     assert model.reward_free and model._n_updates == 750
-    metrics = model._reward_metrics
-    assert METRICS[name] in metrics and all(v.dim() == 0 and th.isfinite(v) for v in metrics.values())
+    model._update_metrics.record(model.logger)  # the updates' means since the last log dump
+    metrics = {k: v for k, v in model.logger.name_to_value.items() if k.startswith("reward/")}
+    assert f"reward/{METRICS[name]}" in metrics and all(np.isfinite(v) for v in metrics.values())
 
     path = tmp_path / f"{name}.zip"
     model.save(path)

@@ -117,9 +117,11 @@ def test_relabel_in_pretraining_and_extrinsic_in_finetuning(tmp_path, tiny):
     np.random.seed(0)
     before = {k: v.clone() for k, v in model.reward_module.state_dict().items()}
     data = model.replay_buffer.sample(32)
-    stored = model.replay_buffer.rewards  # the reward-free env stores zeros
-    assert np.all(stored[: model.replay_buffer.size()] == 0)
-    assert data.rewards.abs().sum() > 0
+    stored = model.replay_buffer.rewards  # the reward-free env stores zeros, and sample() returns them
+    assert np.all(stored[: model.replay_buffer.size()] == 0) and data.rewards.abs().sum() == 0
+    relabelled, metrics = model.replay_buffer.relabel(data)  # the hook the update step applies
+    assert relabelled.rewards.abs().sum() > 0 and th.equal(relabelled.observations, data.observations)
+    assert {"contrastive_loss", "intrinsic_reward_mean"} <= metrics.keys()
     after = model.reward_module.state_dict()
     assert any(not th.equal(before[k], after[k]) for k in before)  # the module was trained on the batch
     model.save(tmp_path / "pre")

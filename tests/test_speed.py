@@ -28,9 +28,7 @@ def pair(tiny):
     b.reward_module.load_state_dict(a.reward_module.state_dict())
     for opt_a, opt_b in zip(optimizers(a), optimizers(b)):
         opt_b.load_state_dict(copy.deepcopy(opt_a.state_dict()))  # no shared step tensors
-    hook, a.replay_buffer.relabel = a.replay_buffer.relabel, None
-    data = a.replay_buffer.sample(32)
-    a.replay_buffer.relabel = hook
+    data = a.replay_buffer.sample(32)  # the stored rewards: the relabel hook is the update step's
     return a, b, data
 
 
@@ -43,8 +41,8 @@ def run_updates(model, data, n=3):
     out = []
     for i in range(n):
         th.manual_seed(i)
-        relabelled = model._relabel(data)
-        metrics = {**model._update(relabelled), **model._reward_metrics}
+        relabelled, reward_metrics = model._relabel(data)
+        metrics = {**model._update(relabelled), **reward_metrics}
         out.append((relabelled.rewards, metrics))
     params = [p.detach() for p in [*model.policy.parameters(), *model.reward_module.parameters()]]
     return out, params

@@ -31,7 +31,7 @@ class RunningMeanStd(nn.Module):
         total = count + n
         self.var.copy_((self.var * count + x.var(dim=0) * n + delta.pow(2) * count * n / total) / total)
         self.mean.add_(delta * n / total)
-        self.count.add_(n)
+        self.count.view(1).add_(n)  # through a view: torch.compile drops an in-place update of a 0-d float64 tensor
 
 
 def knn_distances(source: th.Tensor, target: th.Tensor, k: int) -> th.Tensor:
@@ -39,10 +39,10 @@ def knn_distances(source: th.Tensor, target: th.Tensor, k: int) -> th.Tensor:
 
     The neighbours are selected on squared distances from matrix products (``|a|^2 + |b|^2 - 2 a.b``) and
     ``topk`` (no ``B1 x B2 x D`` tensor); on the CPU, with ``speed_options.knn_partition``, numpy's
-    ``argpartition`` selects the same neighbours faster. The ``k`` distances returned are then computed
-    exactly from the differences to the selected rows (``B1 x k x D``): the expanded form's float32 rounding
-    (up to ~1e-3 for unit vectors) would otherwise give a point a non-zero distance to an exact copy of itself,
-    as URLB's broadcast ``torch.norm`` does not. When ``source`` is ``target`` a point is its own first
+    ``argpartition`` selects the same neighbours faster (not while ``torch.compile`` traces it). The ``k``
+    distances returned are then computed exactly from the differences to the selected rows (``B1 x k x D``):
+    the expanded form's float32 rounding (up to ~1e-3 for unit vectors) would otherwise give a point a non-zero
+    distance to an exact copy of itself, as URLB's broadcast ``torch.norm`` does not. When ``source`` is ``target`` a point is its own first
     neighbour (distance 0), as in URLB.
 
     :param source: ``(B1, D)``
@@ -53,7 +53,10 @@ def knn_distances(source: th.Tensor, target: th.Tensor, k: int) -> th.Tensor:
     sq = (source.pow(2).sum(1, keepdim=True) + target.pow(2).sum(1).unsqueeze(0)).addmm_(source, target.T, alpha=-2.0)
     if source is target:  # a point selects itself first, whatever the rounding residue of |a|^2 + |a|^2 - 2 a.a
         sq.diagonal().fill_(-1.0)
-    numpy_ok = sq.device.type == "cpu" and sq.dtype in (th.float32, th.float64) and not sq.requires_grad
+    numpy_ok = (
+        sq.device.type == "cpu" and sq.dtype in (th.float32, th.float64) and not sq.requires_grad
+        and not th.compiler.is_compiling()
+    )
     if speed_options.knn_partition and numpy_ok and k < sq.shape[1]:
         # the same k neighbours as topk: numpy's introselect, without a sort of the whole row
         index = th.from_numpy(np.argpartition(sq.numpy(), k - 1, axis=1)[:, :k])

@@ -104,7 +104,8 @@ class ProtoReward(RewardModule):
         size = self.queue.shape[0]
         index = (self.queue_ptr.long() + th.arange(embeddings.shape[0], device=self.queue.device)) % size
         self.queue[index] = embeddings
-        self.queue_ptr.copy_((self.queue_ptr + embeddings.shape[0]) % size)
+        # through a view: torch.compile drops an in-place update of a 0-d float64 tensor
+        self.queue_ptr.view(1).copy_((self.queue_ptr + embeddings.shape[0]) % size)
 
     def loss(self, batch: ReplayBufferSamples) -> th.Tensor:
         """Swapped-prediction loss of the batch (prototypes are normalised first)."""
