@@ -20,6 +20,7 @@ from sb3_cic.common.arguments import check_ddpg_arguments, check_range
 from sb3_cic.common.env_util import check_finite_step, env_id_of, prepare_env
 from sb3_cic.common.fast_update import UpdateMetrics, compiled_step
 from sb3_cic.common.method import MethodMixin
+from sb3_cic.common.rollout import LeanRolloutMixin
 from sb3_cic.common.save_util import SavedModel, package_version, read_saved_data
 from sb3_cic.common.skill_mixin import SkillMixin
 from sb3_cic.finetune import start_finetuning, with_finetune_callback
@@ -32,7 +33,7 @@ from sb3_cic.tensor_buffer import TensorReplayBuffer
 SelfURLBDDPG = TypeVar("SelfURLBDDPG", bound="URLBDDPG")
 
 
-class URLBDDPG(MethodMixin, SkillMixin, DDPG):
+class URLBDDPG(MethodMixin, SkillMixin, LeanRolloutMixin, DDPG):
     """DDPG as in the Unsupervised RL Benchmark (Laskin et al., 2021), the base of every method here.
 
     Reference implementation: https://github.com/rll-research/url_benchmark (``agent/ddpg.py``).
@@ -343,6 +344,17 @@ class URLBDDPG(MethodMixin, SkillMixin, DDPG):
         if self.reward_module is not None:
             state_dicts += ["reward_module", "reward_module.optimizer"]
         return state_dicts, variables
+
+    def set_parameters(self, load_path_or_dict: Any, exact_match: bool = True, device: th.device | str = "auto") -> None:
+        """SB3's; saved parameters without the optimisers' states (:func:`~sb3_cic.common.save_util.networks_only`)
+        leave the optimisers fresh."""
+        if exact_match and isinstance(load_path_or_dict, dict):
+            missing = set(self._get_torch_save_params()[0]) - set(load_path_or_dict)
+            networks = sorted(name for name in missing if not name.endswith("optimizer"))
+            if networks:  # a RuntimeError, which load reports as a snapshot that does not fit
+                raise RuntimeError(f"the saved parameters lack {networks}")
+            exact_match = not missing
+        super().set_parameters(load_path_or_dict, exact_match=exact_match, device=device)
 
     @classmethod
     def load(  # type: ignore[override]

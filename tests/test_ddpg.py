@@ -1,6 +1,7 @@
 """URLBDDPG: architecture, n-step targets, relabelling, learning, save/load/resume, errors."""
 
 import pickle
+import zipfile
 
 import gymnasium as gym
 import numpy as np
@@ -14,6 +15,7 @@ from torch import nn
 import sb3_cic  # noqa: F401
 from sb3_cic import CIC, URLBDDPG
 from sb3_cic.buffers import URLBReplayBuffer
+from sb3_cic.common.save_util import networks_only
 
 
 def test_policy_layers_match_spec():
@@ -214,3 +216,29 @@ def test_skill_size_mismatch_is_clear_error(tiny):
         CIC("MlpPolicy", env, skill_dim=3, **tiny)
     model = CIC("MlpPolicy", env, skill_dim=5, **tiny)  # an env already wrapped right is kept
     assert model.observation_space.shape == (9,)
+
+
+def test_networks_only_snapshot_loads_with_fresh_optimisers(tmp_path, tiny):
+    model = CIC("MlpPolicy", "URLB/walker-v0", skill_dim=4, seed=0, **tiny)
+    model.learn(300)
+    model.save(tmp_path / "full.zip")
+    small = networks_only(tmp_path / "full.zip", tmp_path / "networks.zip")
+    with zipfile.ZipFile(small) as archive:
+        names = archive.namelist()
+    assert "policy.pth" in names and "reward_module.pth" in names and not any("optimizer" in n for n in names)
+    assert small.stat().st_size < (tmp_path / "full.zip").stat().st_size
+    loaded = CIC.load(small, env="URLB/walker-v0")
+    for a, b in zip(model.policy.state_dict().values(), loaded.policy.state_dict().values()):
+        assert th.equal(a, b)
+    for a, b in zip(model.reward_module.state_dict().values(), loaded.reward_module.state_dict().values()):
+        assert th.equal(a, b)
+    assert loaded.critic.optimizer.state_dict()["state"] == {}  # fresh
+    task = CIC.load_pretrained(small, env="URLB/walker-stand-v0", learning_starts=100)
+    assert all(th.equal(a, b) for a, b in zip(task.actor.parameters(), model.actor.parameters()))
+    task.learn(150)
+    with pytest.raises(ValueError):  # a missing network is still an error
+        with zipfile.ZipFile(small) as src, zipfile.ZipFile(tmp_path / "broken.zip", "w") as dst:
+            for name in src.namelist():
+                if name != "reward_module.pth":
+                    dst.writestr(name, src.read(name))
+        CIC.load(tmp_path / "broken.zip", env="URLB/walker-v0")

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import os
+import tempfile
 import zipfile
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -34,6 +37,27 @@ def read_saved_data(path: Any, custom_objects: dict[str, Any] | None = None) -> 
             file.seek(start)
         else:
             file.close()
+
+
+def networks_only(path: str | Path, out: str | Path | None = None) -> Path:
+    """Copy a saved model without its optimiser states (``*optimizer.pth``): a snapshot of the networks, the
+    reward module and the attributes, about half the size, that :meth:`~sb3_cic.ddpg.URLBDDPG.load` and
+    ``load_pretrained`` read with fresh optimisers (fine-tuning starts with fresh ones anyway).
+
+    :param path: the saved model (``.zip``)
+    :param out: where to write the copy (default: over ``path``)
+    :return: the path written
+    """
+    path = Path(path)
+    out = path if out is None else Path(out)
+    with zipfile.ZipFile(path) as archive:
+        entries = [(info, archive.read(info)) for info in archive.infolist() if not info.filename.endswith("optimizer.pth")]
+    with tempfile.NamedTemporaryFile(dir=out.parent, suffix=".zip", delete=False) as file:
+        with zipfile.ZipFile(file, "w", zipfile.ZIP_DEFLATED) as archive:
+            for info, content in entries:
+                archive.writestr(info, content)
+    os.replace(file.name, out)
+    return out
 
 
 def package_version() -> str:
