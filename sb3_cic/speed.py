@@ -131,11 +131,21 @@ class FusedAdam(th.optim.Adam):
         return groups
 
     def init_state(self) -> None:
-        """Create the state that torch's first step creates (zero moments, step 0) where a parameter has none.
+        """Create the state that torch's first step creates (zero moments, step 0) where a parameter has none, and
+        copy each group's learning rate into a tensor that :meth:`_traced_step` reads.
 
-        A compiled update (``compile_update=True``) finds its optimisers' state in place: it cannot create it.
+        A compiled update (``compile_update=True``) finds its optimisers' state in place: it cannot create it; and
+        a learning rate read as a tensor lets a schedule change it without compiling the update again.
         """
-        for group in self.param_groups:
+        if len(getattr(self, "_lr_tensors", ())) != len(self.param_groups):
+            self._lr_tensors = [th.zeros((), device=group["params"][0].device) for group in self.param_groups]
+        # what the traced step reads, outside the groups (a compiled read of a group would guard on its "lr")
+        self._traced_groups = [
+            (list(group["params"]), lr, *group["betas"], group["eps"], group["weight_decay"], group["maximize"])
+            for group, lr in zip(self.param_groups, self._lr_tensors)
+        ]
+        for group, lr in zip(self.param_groups, self._lr_tensors):
+            lr.fill_(group["lr"])
             for p in group["params"]:
                 state = self.state[p]
                 if "step" not in state:
@@ -147,16 +157,14 @@ class FusedAdam(th.optim.Adam):
         """Adam's step in tensor operations that ``torch.compile`` traces (torch's ``step`` breaks the graph).
 
         torch's single-tensor Adam with the step counter as a tensor on the parameter's device (as ``capturable``
-        Adam keeps it): the same update as the fused kernel to float rounding, on the same state. Called while
-        compiling; the state must exist (:meth:`init_state`).
+        Adam keeps it) and the learning rate as a tensor: the same update as the fused kernel to float rounding, on
+        the same state. Called while compiling; :meth:`init_state` must have run since the rates last changed.
         """
-        for group in self.param_groups:
-            beta1, beta2 = group["betas"]
-            lr, eps, weight_decay = group["lr"], group["eps"], group["weight_decay"]
-            for p in group["params"]:
+        for params, lr, beta1, beta2, eps, weight_decay, maximize in self._traced_groups:
+            for p in params:
                 if p.grad is None:
                     continue
-                grad = -p.grad if group["maximize"] else p.grad
+                grad = -p.grad if maximize else p.grad
                 if weight_decay != 0:
                     grad = grad.add(p, alpha=weight_decay)
                 state = self.state[p]
@@ -201,7 +209,12 @@ class FusedAdam(th.optim.Adam):
 
     def zero_grad(self, set_to_none: bool = True) -> None:
         """Drop the gradients (``set_to_none``, as torch's default) with a plain loop; else torch's ``zero_grad``."""
-        if not th.compiler.is_compiling() and (not set_to_none or not speed_options.lean_adam):
+        if th.compiler.is_compiling():
+            for params, *_ in self._traced_groups:
+                for p in params:
+                    p.grad = None
+            return None
+        if not set_to_none or not speed_options.lean_adam:
             return super().zero_grad(set_to_none)
         for group in self.param_groups:
             for p in group["params"]:

@@ -105,6 +105,16 @@ def test_finetuning_step_is_one_graph(name, tmp_path):
     assert counters["stats"]["unique_graphs"] >= 1 and not counters["graph_break"], dict(counters["graph_break"])
 
 
+def test_a_learning_rate_schedule_does_not_recompile():
+    counters.clear()
+    model = sb3_cic.CIC("MlpPolicy", "URLB/point_mass-v0", learning_rate=lambda progress: 1e-3 * (0.5 + progress),
+                        compile_update={"backend": "aot_eager"}, **{**KW, "seed": 1})
+    model.learn(300)
+    rates = [float(lr) for lr in model.actor.optimizer._lr_tensors]
+    assert rates == [pytest.approx(model.actor.optimizer.param_groups[0]["lr"])] and 5e-4 <= rates[0] < 1e-3  # moved
+    assert counters["stats"]["unique_graphs"] == 1 and model._n_updates == 100
+
+
 class Capture(KVWriter):
     """A logger output that keeps what each dump wrote."""
 

@@ -82,7 +82,8 @@ def compile_step(step: Step, device: th.device, options: dict[str, Any] | None =
 
 def compiled_step(model: Any) -> Step:
     """``model._step`` compiled (:func:`compile_step`, built at the first call and kept as ``model._compiled_step``),
-    with the state of the optimisers it steps created (:meth:`~sb3_cic.speed.FusedAdam.init_state`).
+    with the state of the optimisers it steps created and their learning rates copied into the tensors the step
+    reads (:meth:`~sb3_cic.speed.FusedAdam.init_state`; call it after SB3 set the rates, as ``train`` does).
 
     :param model: a :class:`~sb3_cic.ddpg.URLBDDPG` with ``compile_update`` True or a dict of ``torch.compile``
         arguments
