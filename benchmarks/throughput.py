@@ -31,12 +31,23 @@ the kNN reward of a batch. ``--profile`` prints where the time of five updates o
 under ``torch.compile`` (``critic_loss``, ``actor_loss`` and the reward module's networks;
 ``reduce-overhead`` adds CUDA graphs on a GPU); the package itself runs eagerly.
 
+``--loop`` measures the acting loop instead (DDPG and CIC of ``--methods``, hidden 256 and 1024 or
+``--loop-hidden``; one fresh process each), per env step, fastest of ``--repeats`` chunks of ``--loop-steps``
+steps timed in turns: ``env`` the underlying gymnasium env's own ``step`` (``URLB/walker-stand-v0`` or
+``URLB/walker-v0``, no wrapper, reset at episode ends, uniform random actions), ``actor`` one forward pass of the
+actor for one observation (``no_grad``), and ``learn()`` with ``gradient_steps=0`` and ``learning_starts=0``
+(the policy acts, with its noise, at every step; warmed up first) with ``speed_options.lean_loop`` on
+(``lean``) and off (``sb3``), and their ratios to ``env + actor``; ``pair`` is the actor and the env in turn
+with nothing else (each acting on the other's last output): what the two cost when they alternate, their
+caches shared, the floor of any acting loop.
+
 Usage::
 
     MUJOCO_GL=disable python benchmarks/throughput.py --threads 1 --sizes small   # the study size, one thread
     MUJOCO_GL=disable python benchmarks/throughput.py --methods cic ddpg --sizes full --ablations
     MUJOCO_GL=disable python benchmarks/throughput.py --device cuda         # where a GPU exists
     MUJOCO_GL=disable python benchmarks/throughput.py --methods cic --sizes small --profile
+    OMP_NUM_THREADS=1 MUJOCO_GL=disable python benchmarks/throughput.py --threads 1 --methods ddpg cic --loop
 """
 
 from __future__ import annotations
@@ -269,6 +280,66 @@ def measure_method(
         "steps_per_s": steps_per_s,
         "peak_mib": peak_memory_mib(device),
     }
+
+
+# ----------------------------------------------------------------------------------------------
+# the acting loop against the env and the actor
+LOOP_METHODS = ("ddpg", "cic")
+
+
+def measure_loop(method: str, hidden: int, repeats: int, steps: int, threads: int) -> dict[str, float]:
+    """Per-step times (ms) of the raw env, the actor and ``learn()`` without updates, lean loop on and off."""
+    import numpy as np
+
+    from sb3_cic.speed import speed_options
+    from sb3_cic.zoo import get_algo
+
+    th.set_num_threads(threads)
+    env_id = "URLB/walker-stand-v0" if method == "ddpg" else "URLB/walker-v0"
+    model = get_algo(method)(
+        "MlpPolicy", env_id, policy_kwargs={"hidden_dim": hidden}, learning_starts=0, gradient_steps=0,
+        buffer_size=100_000, seed=0,
+    )
+    raw_env = model.env.envs[0].unwrapped  # the gymnasium env below the skill wrapper and Monitor
+    raw_env.reset(seed=1)
+    actions = np.random.default_rng(0).uniform(-1, 1, (steps, *raw_env.action_space.shape)).astype(np.float32)
+    obs = model.observation_space.sample()[None]
+
+    def env_steps() -> None:
+        for action in actions:
+            _, _, terminated, truncated, _ = raw_env.step(action)
+            if terminated or truncated:
+                raw_env.reset()
+
+    def actor_steps() -> None:
+        actor = model.policy.actor
+        with th.no_grad():
+            for _ in range(steps):
+                actor(th.as_tensor(obs))
+
+    def alternating() -> None:  # the two in turn, each step acting on the env's last state
+        actor, state = model.policy.actor, obs.copy()
+        with th.no_grad():
+            for _ in range(steps):
+                action = actor(th.as_tensor(state)).numpy()[0]
+                next_state, _, terminated, truncated, _ = raw_env.step(action)
+                if terminated or truncated:
+                    next_state, _ = raw_env.reset()
+                state[0, : len(next_state)] = next_state
+
+    def learn(lean: bool) -> Callable[[], None]:
+        def run() -> None:
+            with speed_options.override(lean_loop=lean):
+                model.learn(steps, reset_num_timesteps=False)
+
+        return run
+
+    best = best_times(
+        {"env": env_steps, "actor": actor_steps, "pair": alternating, "lean": learn(True), "sb3": learn(False)},
+        th.device("cpu"),
+        repeats,
+    )
+    return {name: seconds * 1e3 / steps for name, seconds in best.items()}
 
 
 # ----------------------------------------------------------------------------------------------
@@ -545,6 +616,24 @@ def _in_fresh_process(fn: Callable, *args: Any) -> Any:
         return pool.submit(fn, *args).result()
 
 
+def print_loop_table(args: argparse.Namespace) -> None:
+    """The ``--loop`` table: ms per env step, and ``learn`` over ``env + actor``."""
+    print(f"torch {th.__version__}, cpu, {args.threads} threads; ms per env step, fastest of {args.repeats} turns of "
+          f"{args.loop_steps} steps; x: over env + actor")
+    columns = ["env", "actor", "pair", "sb3", "lean", "pair x", "sb3 x", "lean x"]
+    header = f"{'method':<8}{'hidden':>7}" + "".join(f"{name:>8}" for name in columns)
+    print(header + "\n" + "-" * len(header))
+    for method in [m for m in args.methods if m in LOOP_METHODS]:
+        for hidden in args.loop_hidden:
+            r = _in_fresh_process(measure_loop, method, hidden, args.repeats, args.loop_steps, args.threads)
+            bound = r["env"] + r["actor"]
+            print(
+                f"{method:<8}{hidden:>7}{r['env']:>8.3f}{r['actor']:>8.3f}{r['pair']:>8.3f}{r['sb3']:>8.3f}{r['lean']:>8.3f}"
+                f"{r['pair'] / bound:>7.2f}x{r['sb3'] / bound:>7.2f}x{r['lean'] / bound:>7.2f}x",
+                flush=True,
+            )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--methods", nargs="+", default=METHODS, choices=METHODS)
@@ -562,7 +651,13 @@ def main() -> None:
         help="also time each method with its losses and reward networks under torch.compile(mode=MODE)",
     )
     parser.add_argument("--profile", action="store_true", help="where the time of each method's update goes, by operator")
+    parser.add_argument("--loop", action="store_true", help="time the acting loop against the raw env and the actor")
+    parser.add_argument("--loop-hidden", nargs="+", type=int, default=[256, 1024], help="hidden sizes of --loop")
+    parser.add_argument("--loop-steps", type=int, default=1000, help="env steps per timed chunk of --loop")
     args = parser.parse_args()
+    if args.loop:
+        print_loop_table(args)
+        return
 
     print(f"torch {th.__version__}, device {args.device}, {args.threads} threads")
     header = (

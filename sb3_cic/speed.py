@@ -50,8 +50,9 @@ class SpeedOptions:
         step at hidden 256 took 170.5 us instead of 185.3 us on this project's CPU); the same kernels on the
         same inputs, so the same outputs, bit for bit. A layer with hooks is still called as a module
     :param lean_loop: the acting loop (``collect_rollouts``) of :class:`~sb3_cic.common.rollout.LeanRolloutMixin`:
-        SB3's loop step for step with less work per env step around the action, the env step and the
-        stored transition; the same actions, transitions, callbacks and statistics
+        SB3's loop step for step with less work per env step around the actor, the env step and the stored
+        transition (``learn()`` without updates, DDPG at hidden 256 on this project's CPU: 0.703 ms a step
+        instead of 1.124); the same actions, transitions, callbacks and statistics (``tests/test_rollout.py``)
     """
 
     lean_adam: bool = True
