@@ -41,6 +41,11 @@ actor for one observation (``no_grad``), and ``learn()`` with ``gradient_steps=0
 with nothing else (each acting on the other's last output): what the two cost when they alternate, their
 caches shared, the floor of any acting loop.
 
+``--fast`` puts each method's eager update beside ``compile_update=True`` (one fresh process per method and
+size): update ms, ``learn()`` env steps/s over ``--learn-steps`` (one update every 2 env steps), hours per 2M
+steps, the first compiled update's time (compiling included) and peak memory; on a GPU, the command of the GPU
+figure is ``python benchmarks/throughput.py --device cuda --sizes full --fast --learn-steps 20000 --repeats 10``.
+
 Usage::
 
     MUJOCO_GL=disable python benchmarks/throughput.py --threads 1 --sizes small   # the study size, one thread
@@ -173,9 +178,12 @@ def fill_steps(batch: int) -> int:
 
 
 def build(
-    method: str, hidden: int, batch: int, device: str, buffer_size: int = 10_000, seed: int = 0, compile_mode: str = ""
+    method: str, hidden: int, batch: int, device: str, buffer_size: int = 10_000, seed: int = 0, compile_mode: str = "",
+    compile_update: bool = False,
 ) -> Any:
     """A model of ``method`` whose buffer holds :func:`fill_steps` random steps (no update taken yet).
+
+    ``compile_update`` is the model's argument (the whole step compiled, at its first update).
 
     With ``compile_mode``, ``critic_loss``, ``actor_loss`` and each network of the reward module go
     through ``torch.compile(mode=compile_mode)`` (compiled during the warm-up updates).
@@ -193,6 +201,7 @@ def build(
         learning_starts=fill_steps(batch),
         device=device,
         seed=seed,
+        compile_update=compile_update,
     )
     if compile_mode:
         model.critic_loss = th.compile(model.critic_loss, mode=compile_mode)
@@ -340,6 +349,64 @@ def measure_loop(method: str, hidden: int, repeats: int, steps: int, threads: in
         repeats,
     )
     return {name: seconds * 1e3 / steps for name, seconds in best.items()}
+
+
+# ----------------------------------------------------------------------------------------------
+# eager against compile_update=True
+def measure_fast(method: str, size: str, device_name: str, repeats: int, learn_steps: int, threads: int) -> dict:
+    """One method at one size, eager and ``compile_update=True`` side by side (``--fast``).
+
+    Per path: the first compiled update (``compile s``: compiling included), one update (``update ms``, the fastest
+    of ``repeats`` turns of 10 updates, the two paths in turn), ``learn()`` env steps/s over ``learn_steps`` steps
+    with one update every 2 (after the warm-up above), the hours of a 2M-step pre-training at that rate, and the
+    peak memory (CUDA: ``max_memory_allocated``; CPU: the process's peak resident memory, both paths together).
+    """
+    th.set_num_threads(threads)
+    device = th.device(device_name)
+    hidden, batch = SIZES[size]
+    out: dict[str, Any] = {}
+    models = {}
+    for fast in (False, True):
+        model = build(method, hidden, batch, device, compile_update=fast)
+        start = time.perf_counter()
+        model.train(1, batch)
+        _sync(device)
+        out[f"compile s {fast}"] = time.perf_counter() - start
+        models[fast] = model
+    times = best_times({fast: (lambda m=m: m.train(10, batch)) for fast, m in models.items()}, device, repeats)
+    for fast, model in models.items():
+        if device.type == "cuda":
+            th.cuda.reset_peak_memory_stats(device)
+        start = time.perf_counter()
+        model.learn(learn_steps, reset_num_timesteps=False)
+        _sync(device)
+        rate = learn_steps / (time.perf_counter() - start)
+        out[f"update ms {fast}"] = times[fast] * 100.0
+        out[f"steps/s {fast}"] = rate
+        out[f"2M h {fast}"] = 2e6 / rate / 3600
+        out[f"peak MiB {fast}"] = peak_memory_mib(device)
+    return out
+
+
+def print_fast_table(args: argparse.Namespace) -> None:
+    """The ``--fast`` table: each method eager and compiled, side by side."""
+    print(f"torch {th.__version__}, {args.device}, {args.threads} threads; update: fastest of {args.repeats} turns of 10; "
+          f"learn(): {args.learn_steps} env steps after the warm-up")
+    columns = ["update ms", "x", "steps/s", "x", "2M h", "compile s", "peak MiB"]
+    header = f"{'method':<14}{'size':<6}{'path':<9}" + "".join(f"{name:>11}" for name in columns)
+    print(header + "\n" + "-" * len(header))
+    for size in args.sizes:
+        for method in args.methods:
+            r = _in_fresh_process(measure_fast, method, size, args.device, args.repeats, args.learn_steps, args.threads)
+            for fast in (False, True):
+                speedup = r[f"update ms {False}"] / r[f"update ms {fast}"]
+                rate_up = r[f"steps/s {fast}"] / r[f"steps/s {False}"]
+                print(
+                    f"{method:<14}{size:<6}{'compiled' if fast else 'eager':<9}{r[f'update ms {fast}']:>11.2f}{speedup:>10.2f}x"
+                    f"{r[f'steps/s {fast}']:>11.1f}{rate_up:>10.2f}x{r[f'2M h {fast}']:>11.2f}"
+                    f"{r[f'compile s {fast}'] if fast else float('nan'):>11.1f}{r[f'peak MiB {fast}']:>11.0f}",
+                    flush=True,
+                )
 
 
 # ----------------------------------------------------------------------------------------------
@@ -654,9 +721,13 @@ def main() -> None:
     parser.add_argument("--loop", action="store_true", help="time the acting loop against the raw env and the actor")
     parser.add_argument("--loop-hidden", nargs="+", type=int, default=[256, 1024], help="hidden sizes of --loop")
     parser.add_argument("--loop-steps", type=int, default=1000, help="env steps per timed chunk of --loop")
+    parser.add_argument("--fast", action="store_true", help="each method eager and with compile_update=True, side by side")
     args = parser.parse_args()
     if args.loop:
         print_loop_table(args)
+        return
+    if args.fast:
+        print_fast_table(args)
         return
 
     print(f"torch {th.__version__}, device {args.device}, {args.threads} threads")
