@@ -32,7 +32,7 @@ class UpdateMetrics:
         if self.sums.keys() != metrics.keys():
             self.sums = {key: th.zeros((), dtype=th.float64, device=value.device) for key, value in metrics.items()}
             self.count = 0
-        th._foreach_add_(list(self.sums.values()), [value.detach() for value in metrics.values()])
+        th._foreach_add_(list(self.sums.values()), [metrics[key].detach() for key in self.sums])
         self.count += 1
 
     def record(self, logger: Logger) -> None:
