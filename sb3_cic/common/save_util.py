@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import shutil
 import tempfile
 import zipfile
 from pathlib import Path
@@ -56,6 +57,7 @@ def networks_only(path: str | Path, out: str | Path | None = None) -> Path:
         with zipfile.ZipFile(file, "w", zipfile.ZIP_DEFLATED) as archive:
             for info, content in entries:
                 archive.writestr(info, content)
+    shutil.copymode(path, file.name)  # the source's permissions, not the temporary file's
     os.replace(file.name, out)
     return out
 
