@@ -140,13 +140,13 @@ class FusedAdam(th.optim.Adam):
         """
         if len(getattr(self, "_lr_tensors", ())) != len(self.param_groups):
             self._lr_tensors = [th.zeros((), device=group["params"][0].device) for group in self.param_groups]
-        # what the traced step reads, outside the groups (a compiled read of a group would guard on its "lr")
-        self._traced_groups = [
-            (list(group["params"]), lr, *group["betas"], group["eps"], group["weight_decay"], group["maximize"])
-            for group, lr in zip(self.param_groups, self._lr_tensors)
-        ]
+        #: what the traced step reads, outside the groups (a compiled read of a group would guard on its "lr")
+        self._traced_groups = []
         for group, lr in zip(self.param_groups, self._lr_tensors):
             lr.fill_(group["lr"])
+            self._traced_groups.append(
+                (list(group["params"]), lr, *group["betas"], group["eps"], group["weight_decay"], group["maximize"])
+            )
             for p in group["params"]:
                 state = self.state[p]
                 if "step" not in state:

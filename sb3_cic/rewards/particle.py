@@ -42,8 +42,8 @@ def knn_distances(source: th.Tensor, target: th.Tensor, k: int) -> th.Tensor:
     ``argpartition`` selects the same neighbours faster (not while ``torch.compile`` traces it). The ``k``
     distances returned are then computed exactly from the differences to the selected rows (``B1 x k x D``):
     the expanded form's float32 rounding (up to ~1e-3 for unit vectors) would otherwise give a point a non-zero
-    distance to an exact copy of itself, as URLB's broadcast ``torch.norm`` does not. When ``source`` is ``target`` a point is its own first
-    neighbour (distance 0), as in URLB.
+    distance to an exact copy of itself, as URLB's broadcast ``torch.norm`` does not. When ``source`` is ``target``
+    a point is its own first neighbour (distance 0), as in URLB.
 
     :param source: ``(B1, D)``
     :param target: ``(B2, D)``
