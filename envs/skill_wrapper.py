@@ -35,7 +35,8 @@ def skill_observation_space(space: spaces.Space, prior: Any) -> spaces.Box:
 
 class SkillSchedule:
     """One env's current skill: resampled from ``prior`` at every reset and every ``resample_every``
-    steps, unless fixed.
+    steps, unless fixed. A prior with ``sample_at(rng, episode_step)`` is told the step of the episode
+    (MOSS's skills depend on it).
 
     :param prior: a skill prior (see :mod:`sb3_cic.skills`): ``dim``, ``low``, ``high``,
         ``sample(rng)``, ``grid(n)`` and ``validate(z)``
@@ -51,6 +52,7 @@ class SkillSchedule:
         self.rng = np.random.default_rng()
         self.skill = prior.sample(self.rng)
         self.steps = 0
+        self.episode_steps = 0
 
     def get_skill(self) -> np.ndarray:
         """The current skill (a copy)."""
@@ -70,23 +72,33 @@ class SkillSchedule:
         """A new episode: re-seed if ``seed`` is given, resample unless fixed."""
         if seed is not None:
             self.rng = np.random.default_rng(seed)
-        if not self.fixed:
-            self.skill = self.prior.sample(self.rng)
         self.steps = 0
+        self.episode_steps = 0
+        if not self.fixed:
+            self.skill = self._draw()
 
     def step(self) -> None:
         """One env step: resample when the period is over, unless fixed."""
         self.steps += 1
+        self.episode_steps += 1
         if not self.fixed and self.resample_every is not None and self.steps % self.resample_every == 0:
-            self.skill = self.prior.sample(self.rng)
+            self.skill = self._draw()
+
+    def _draw(self) -> np.ndarray:
+        """A skill of the prior for the current step of the episode (``sample_at``; a prior without it: ``sample``)."""
+        sample_at = getattr(self.prior, "sample_at", None)
+        return self.prior.sample(self.rng) if sample_at is None else sample_at(self.rng, self.episode_steps)
 
     def observe(self, state: np.ndarray) -> np.ndarray:
         """``[state, skill]`` as float32."""
         return np.concatenate([state, self.skill]).astype(np.float32, copy=False)
 
     def get_state(self) -> dict[str, Any]:
-        """The schedule's state (random generator, skill, mode, step count), for checkpoints."""
-        return {"rng": copy.deepcopy(self.rng), "skill": self.skill.copy(), "fixed": self.fixed, "steps": self.steps}
+        """The schedule's state (random generator, skill, mode, step counts), for checkpoints."""
+        return {
+            "rng": copy.deepcopy(self.rng), "skill": self.skill.copy(), "fixed": self.fixed, "steps": self.steps,
+            "episode_steps": self.episode_steps,
+        }
 
     def set_state(self, state: dict[str, Any]) -> None:
         """Restore what :meth:`get_state` returned."""
@@ -94,6 +106,7 @@ class SkillSchedule:
         self.skill = np.array(state["skill"], copy=True)
         self.fixed = bool(state["fixed"])
         self.steps = int(state["steps"])
+        self.episode_steps = int(state.get("episode_steps", state["steps"]))  # older checkpoints: the same count
 
 
 class SkillObservationWrapper(gym.Wrapper):

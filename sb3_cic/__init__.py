@@ -8,8 +8,8 @@ from sb3_cic.buffers import URLBReplayBuffer
 from sb3_cic.callbacks import FixedSkillCallback, SkillGridSweepCallback, SkillSelectionCallback, URLBEvalCallback
 from sb3_cic.constants import EXPERT_SCORES, normalized_score
 from sb3_cic.ddpg import URLBDDPG
-from sb3_cic.methods import APS, APT, CIC, DIAYN, ICM, RND, SMM, APSRegressionCallback, Disagreement, ProtoRL
-from sb3_cic.skills import OneHotSkillPrior, SkillPrior, SphereSkillPrior, UniformSkillPrior
+from sb3_cic.methods import APS, APT, CIC, DIAYN, ICM, MOSS, RND, SMM, APSRegressionCallback, Disagreement, ProtoRL
+from sb3_cic.skills import MixtureSkillPrior, OneHotSkillPrior, SkillPrior, SphereSkillPrior, UniformSkillPrior
 from sb3_cic.version import __version__
 
 __all__ = [
@@ -22,6 +22,7 @@ __all__ = [
     "DIAYN",
     "SMM",
     "APS",
+    "MOSS",
     "APSRegressionCallback",
     "URLBDDPG",
     "URLBReplayBuffer",
@@ -29,6 +30,7 @@ __all__ = [
     "UniformSkillPrior",
     "OneHotSkillPrior",
     "SphereSkillPrior",
+    "MixtureSkillPrior",
     "SkillSelectionCallback",
     "SkillGridSweepCallback",
     "FixedSkillCallback",

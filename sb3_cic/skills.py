@@ -9,6 +9,7 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 
 import numpy as np
+import torch as th
 
 
 class SkillPrior(ABC):
@@ -33,6 +34,15 @@ class SkillPrior(ABC):
     @abstractmethod
     def grid(self, n: int) -> np.ndarray:
         """Return ``n`` candidate skills, shape ``(n, dim)``, for a fine-tuning sweep."""
+
+    def sample_at(self, rng: np.random.Generator, episode_step: int) -> np.ndarray:
+        """Draw the skill of step ``episode_step`` of an episode (0 at reset): :meth:`sample`, whatever the step,
+        but for a prior whose skills depend on the part of the episode (:class:`MixtureSkillPrior`).
+
+        :param rng: random generator
+        :param episode_step: steps since the episode's reset
+        """
+        return self.sample(rng)
 
     def validate(self, skill: np.ndarray) -> np.ndarray:
         """Return ``skill`` as a float32 vector, or raise ``ValueError`` if it is not in the prior's support.
@@ -120,3 +130,76 @@ class SphereSkillPrior(SkillPrior):
         if abs(float(np.linalg.norm(z)) - 1.0) > 1e-3:
             raise ValueError(f"SphereSkillPrior: skill must have unit norm, got norm {np.linalg.norm(z):.4f}")
         return z
+
+
+#: MOSS's ways of carrying the mode in the skill (:class:`MixtureSkillPrior`)
+MOSS_SKILL_MODES = ("half", "sign")
+
+
+def control_mask(skills: th.Tensor, skill_mode: str) -> th.Tensor:
+    """Which skills of a batch ``(B, dim)`` are control skills of :class:`MixtureSkillPrior` (``(B, 1)`` bool).
+
+    ``"half"``: the first ``dim // 2`` coordinates are zero (an explore skill draws them from U[0, 1]);
+    ``"sign"``: the coordinates are negative.
+
+    :param skills: skills of the prior
+    :param skill_mode: the prior's ``skill_mode``
+    """
+    if skill_mode == "half":
+        return (skills[:, : skills.shape[1] // 2] == 0).all(dim=1, keepdim=True)
+    return skills.sum(dim=1, keepdim=True) < 0
+
+
+class MixtureSkillPrior(SkillPrior):
+    """MOSS's skills (Zhao et al., 2022): each part of an episode either explores or controls, and the skill says which.
+
+    The episode of ``episode_length`` steps is cut into parts of ``episode_length // partitions`` steps; a skill drawn
+    in an even part (the first included) is an *explore* skill, in an odd part a *control* skill (MOSS's
+    defaults: 2 partitions, the first half of an episode explores, the second controls; their jaco example: 1.5,
+    the first 666 steps explore). With ``skill_mode="half"`` (MOSS's default) an explore skill is
+    ``[U[0, 1]^(dim - dim // 2), 0^(dim // 2)]`` and a control skill ``[0^(dim // 2), U[0, 1]^(dim - dim // 2)]``;
+    with ``"sign"`` an explore skill is ``U[0, 1]^dim`` and a control skill its negative. :func:`control_mask`
+    reads the mode back from a skill.
+
+    The grid of a fine-tuning sweep is MOSS's: constant skills ``c * 1`` for ``c`` evenly spaced in [-1, 0]
+    (their ``grid_search``), which the bounds [-1, 1] admit.
+
+    :param dim: skill size (MOSS: 32)
+    :param partitions: parts of an episode, alternately explore and control (2)
+    :param skill_mode: "half" or "sign" (see above)
+    :param episode_length: steps of an episode (URLB's 1,000)
+    """
+
+    def __init__(self, dim: int = 32, partitions: float = 2, skill_mode: str = "half", episode_length: int = 1000) -> None:
+        super().__init__(dim, -1.0, 1.0)
+        if skill_mode not in MOSS_SKILL_MODES:
+            raise ValueError(f"skill_mode must be one of {MOSS_SKILL_MODES}, got {skill_mode!r}")
+        if skill_mode == "half" and dim < 2:
+            raise ValueError(f"skill_mode 'half' needs a skill of at least 2 coordinates, got dim {dim}")
+        if not partitions > 0 or episode_length // partitions < 1:
+            raise ValueError(f"partitions must be > 0 and at most episode_length ({episode_length}), got {partitions}")
+        self.partitions = partitions
+        self.skill_mode = skill_mode
+        self.episode_length = int(episode_length)
+
+    def is_control_step(self, episode_step: int) -> bool:
+        """Whether a skill drawn at ``episode_step`` is a control skill."""
+        return bool(int(episode_step // (self.episode_length // self.partitions)) % 2)
+
+    def sample(self, rng: np.random.Generator) -> np.ndarray:
+        """An explore skill (the mode of an episode's first step)."""
+        return self.sample_at(rng, 0)
+
+    def sample_at(self, rng: np.random.Generator, episode_step: int) -> np.ndarray:
+        control = self.is_control_step(episode_step)
+        if self.skill_mode == "sign":
+            z = rng.uniform(0.0, 1.0, size=self.dim)
+            return (-z if control else z).astype(np.float32)
+        zeros, drawn = self.dim // 2, self.dim - self.dim // 2
+        uniform = rng.uniform(0.0, 1.0, size=drawn)
+        parts = (np.zeros(zeros), uniform) if control else (uniform, np.zeros(zeros))
+        return np.concatenate(parts).astype(np.float32)
+
+    def grid(self, n: int) -> np.ndarray:
+        values = np.linspace(-1.0, 0.0, n, dtype=np.float32)
+        return np.repeat(values[:, None], self.dim, axis=1)

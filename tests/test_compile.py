@@ -4,7 +4,7 @@
   (``fullgraph=True``, and dynamo counts no break; the fine-tuning step through dynamo's own backend, which
   compiles nothing, to keep this fast).
 * Equivalence: 20 updates from the same state, eager against compiled, give the same parameters, optimiser
-  states, reward-module state and intrinsic rewards to float rounding: all ten methods through AOTAutograd
+  states, reward-module state and intrinsic rewards to float rounding: all eleven methods through AOTAutograd
   (``aot_eager``: the traced forward and backward graphs, run eagerly), DDPG and CIC through inductor, the
   default backend (its random numbers drawn as eager's, ``fallback_random``).
 """
@@ -23,7 +23,7 @@ import sb3_cic
 from sb3_cic.common.fast_update import UpdateMetrics
 from sb3_cic.tensor_buffer import TensorReplayBuffer
 
-NAMES = ["URLBDDPG", "CIC", "ICM", "Disagreement", "RND", "APT", "ProtoRL", "DIAYN", "SMM", "APS"]
+NAMES = ["URLBDDPG", "CIC", "ICM", "Disagreement", "RND", "APT", "ProtoRL", "DIAYN", "SMM", "APS", "MOSS"]
 KW = dict(policy_kwargs={"hidden_dim": 32}, batch_size=32, buffer_size=2000, learning_starts=100, seed=0)
 
 

@@ -1,4 +1,4 @@
-"""The SB3 contract: what an SB3 DDPG user does by habit works, or is refused in one clear line, for all ten classes."""
+"""The SB3 contract: what an SB3 DDPG user does by habit works, or is refused in one clear line, for all eleven classes."""
 
 import os
 import subprocess
@@ -19,11 +19,11 @@ from stable_baselines3.common.noise import OrnsteinUhlenbeckActionNoise
 from stable_baselines3.common.torch_layers import FlattenExtractor
 
 from envs import SkillObservationWrapper, VecSkillObservation
-from sb3_cic import APS, APT, CIC, DIAYN, ICM, RND, SMM, Disagreement, ProtoRL, URLBDDPG, URLBReplayBuffer
+from sb3_cic import APS, APT, CIC, DIAYN, ICM, MOSS, RND, SMM, Disagreement, ProtoRL, URLBDDPG, URLBReplayBuffer
 from sb3_cic.policies import URLBActor
 
-ALL = [URLBDDPG, CIC, ICM, Disagreement, RND, APT, ProtoRL, DIAYN, SMM, APS]
-SKILLED = [CIC, DIAYN, SMM, APS]
+ALL = [URLBDDPG, CIC, ICM, Disagreement, RND, APT, ProtoRL, DIAYN, SMM, APS, MOSS]
+SKILLED = [CIC, DIAYN, SMM, APS, MOSS]
 SMALL = dict(policy_kwargs={"hidden_dim": 16}, batch_size=16, buffer_size=1000, learning_starts=20, seed=0)
 
 
@@ -261,7 +261,7 @@ def test_bad_arguments_are_refused_at_construction(cls, kwargs, name):
 @pytest.mark.parametrize("cls", [c for c in ALL if c is not URLBDDPG and c is not ProtoRL])
 @pytest.mark.parametrize("width", [0, -4, 2.5, "256"])
 def test_reward_module_width_must_be_a_positive_int(cls, width):
-    name = f"{cls.__name__.lower()}_hidden_dim"
+    name = next(arg for arg, parameter in cls.reward_module_args.items() if parameter == "hidden_dim")  # MOSS: CIC's
     with pytest.raises(ValueError, match=f"{name} must be an int >= 1"):
         cls("MlpPolicy", "Pendulum-v1", **small(**{name: width}))
 

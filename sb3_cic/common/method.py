@@ -37,6 +37,9 @@ class MethodMixin:
 
     #: the skill prior, built as ``skill_prior_class(skill_dim)`` (None: no skill unless ``skill_prior`` is given)
     skill_prior_class: ClassVar[type[SkillPrior] | None] = None
+    #: the method's arguments that the skill prior also takes, ``{method argument: prior parameter}`` (MOSS's mode
+    #: schedule); a name of :attr:`reward_module_args` too goes to both, with the reward module's default
+    skill_prior_args: ClassVar[dict[str, str]] = {}
     #: the intrinsic reward module (None: no pre-training)
     reward_module_class: ClassVar[type[RewardModule] | None] = None
     #: the method's arguments that the reward module takes, ``{method argument: module parameter}``
@@ -76,12 +79,13 @@ class MethodMixin:
         self.finetune_skill_choice = self._check_finetune_skill_choice(choice)
 
     def _set_method_args(self, method_kwargs: dict[str, Any]) -> None:
-        """Set the method's reward-module arguments (:attr:`reward_module_args`) as attributes, their defaults
-        the module's; ``TypeError`` for an argument the method does not take.
+        """Set the method's reward-module and skill-prior arguments (:attr:`reward_module_args`,
+        :attr:`skill_prior_args`) as attributes, their defaults the module's or the prior's; ``TypeError`` for an
+        argument the method does not take.
 
         :param method_kwargs: the constructor's extra keyword arguments
         """
-        unknown = sorted(set(method_kwargs) - set(self.reward_module_args))
+        unknown = sorted(set(method_kwargs) - set(self.reward_module_args) - set(self.skill_prior_args))
         if unknown:
             raise TypeError(f"{type(self).__name__}.__init__() got an unexpected keyword argument {unknown[0]!r}")
         for name, parameter in self.reward_module_args.items():
@@ -91,9 +95,14 @@ class MethodMixin:
             if parameter.endswith("hidden_dim") and value is not None:
                 check_positive_int(name, value)
             setattr(self, name, value)
+        for name, parameter in self.skill_prior_args.items():
+            if name not in self.reward_module_args:
+                value = method_kwargs.get(name)
+                setattr(self, name, parameter_default(self.skill_prior_class, parameter) if value is None else value)
 
     def _make_skill_prior(self, skill_prior: SkillPrior | None, skill_dim: int | None) -> SkillPrior | None:
-        """The given prior, else the method's :attr:`skill_prior_class` (of size ``skill_dim``, default its own).
+        """The given prior, else the method's :attr:`skill_prior_class` (of size ``skill_dim``, default its own) with
+        the :attr:`skill_prior_args`.
 
         :param skill_prior: a prior given to the constructor
         :param skill_dim: the size of the method's prior
@@ -102,7 +111,8 @@ class MethodMixin:
             if skill_dim is not None:
                 raise ValueError(f"skill_dim is the size of {type(self).__name__}'s own prior: give skill_prior or skill_dim")
             return skill_prior
-        return self.skill_prior_class() if skill_dim is None else self.skill_prior_class(skill_dim)
+        kwargs = {parameter: getattr(self, name) for name, parameter in self.skill_prior_args.items()}
+        return self.skill_prior_class(**kwargs) if skill_dim is None else self.skill_prior_class(skill_dim, **kwargs)
 
     def _check_finetune_skill_choice(self, choice: str | None) -> str | None:
         """``choice``, or the first of :attr:`finetune_skill_choices` for None; ``ValueError`` for another name.

@@ -7,6 +7,7 @@ from sb3_cic.methods.cic import CIC
 from sb3_cic.methods.diayn import DIAYN
 from sb3_cic.methods.disagreement import Disagreement
 from sb3_cic.methods.icm import ICM
+from sb3_cic.methods.moss import MOSS
 from sb3_cic.methods.proto import ProtoRL
 from sb3_cic.methods.rnd import RND
 from sb3_cic.methods.smm import SMM
@@ -21,6 +22,7 @@ __all__ = [
     "DIAYN",
     "SMM",
     "APS",
+    "MOSS",
     "APSPolicy",
     "APSCritic",
     "APSRegressionCallback",

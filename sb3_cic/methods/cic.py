@@ -66,5 +66,6 @@ class CIC(URLBDDPG):
 
     def __init__(self, policy: str | type, env: GymEnv | str, **kwargs: Any) -> None:
         if kwargs.get("knn_k") is None:  # the variant's (a ValueError for an unknown variant, before anything is built)
-            kwargs["knn_k"] = CICReward.default_knn_k(kwargs.get("cic_variant") or parameter_default(CICReward, "variant"))
+            variant = kwargs.get("cic_variant") or parameter_default(self.reward_module_class, "variant")
+            kwargs["knn_k"] = CICReward.default_knn_k(variant)
         super().__init__(policy, env, **kwargs)

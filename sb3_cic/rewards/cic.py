@@ -116,18 +116,28 @@ class CICReward(RewardModule):
         negatives = (logits.exp().sum(dim=1) - math.exp(1.0 / self.temperature)).clamp_min(1e-6)
         return (th.log(negatives + 1e-6) - logits.diagonal()).mean(), accuracy
 
-    def query_key(self, batch: ReplayBufferSamples) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
-        """The queries ``g2(z)``, the keys ``pred([g1(s), g1(s')])`` and the embeddings ``g1(s')`` of a batch."""
+    def query_key(self, batch: ReplayBufferSamples) -> tuple[th.Tensor, th.Tensor, tuple[th.Tensor, th.Tensor]]:
+        """The queries ``g2(z)``, the keys ``pred([g1(s), g1(s')])`` and the embeddings ``(g1(s), g1(s'))`` of a batch."""
         state, skill = self.split(batch.observations)
         next_state = batch.next_observations[:, : self.state_dim]
-        embedding = self.state_net(th.cat([state, next_state], dim=0))
-        key = self.pred_net(th.cat(embedding.chunk(2, dim=0), dim=1))
-        return self.skill_net(skill), key, embedding[state.shape[0] :]
+        embedding, next_embedding = self.state_net(th.cat([state, next_state], dim=0)).chunk(2, dim=0)
+        key = self.pred_net(th.cat([embedding, next_embedding], dim=1))
+        return self.skill_net(skill), key, (embedding, next_embedding)
 
-    def _loss(self, batch: ReplayBufferSamples) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
-        query, key, next_embedding = self.query_key(batch)
+    def _loss(self, batch: ReplayBufferSamples) -> tuple[th.Tensor, th.Tensor, tuple[th.Tensor, th.Tensor]]:
+        query, key, embeddings = self.query_key(batch)
         loss, accuracy = self.contrastive_loss(query, key)
-        return loss, accuracy, next_embedding
+        return loss, accuracy, embeddings
+
+    def particle_reward(self, batch: ReplayBufferSamples, embeddings: tuple[th.Tensor, th.Tensor] | None = None) -> th.Tensor:
+        """The particle reward of a batch: the entropy estimate of each ``g1(s')`` among the batch's.
+
+        :param batch: the batch
+        :param embeddings: ``(g1(s), g1(s'))`` when already computed (:meth:`query_key`), else computed here
+        """
+        if embeddings is None:
+            return self.particle(self.state_net(batch.next_observations[:, : self.state_dim]))
+        return self.particle(embeddings[1])
 
     def update(self, batch: ReplayBufferSamples) -> dict[str, th.Tensor]:
         loss, accuracy, _ = self._loss(batch)
@@ -135,11 +145,11 @@ class CICReward(RewardModule):
         return {"contrastive_loss": loss.detach(), "disc_accuracy": accuracy}
 
     def reward(self, batch: ReplayBufferSamples) -> th.Tensor:
-        return self.particle(self.state_net(batch.next_observations[:, : self.state_dim]))
+        return self.particle_reward(batch)
 
     def update_and_reward(self, batch: ReplayBufferSamples) -> tuple[th.Tensor, dict[str, th.Tensor]]:
-        loss, accuracy, next_embedding = self._loss(batch)
+        loss, accuracy, embeddings = self._loss(batch)
         with th.no_grad():
-            reward = self.particle(next_embedding.detach())
+            reward = self.particle_reward(batch, (embeddings[0].detach(), embeddings[1].detach()))
         self.optimizer_step(loss)
         return reward, {"contrastive_loss": loss.detach(), "disc_accuracy": accuracy}

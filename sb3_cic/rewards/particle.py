@@ -88,15 +88,25 @@ class ParticleEntropy(nn.Module):
     :param c: constant inside the log
     :param divide_by: the running statistic: "mean" (URLB, the CIC paper) or "var", the running variance that
         the CIC code divides by (its ``moving_std`` is the variance)
+    :param center: subtract the running mean from each distance before dividing (MOSS's ``minus_mean``:
+        ``(d_k - mean) / var``)
     """
 
     def __init__(
-        self, k: int = 12, avg: bool = True, rms: bool = True, clip: float = 0.0005, c: float = 1.0, divide_by: str = "mean"
+        self,
+        k: int = 12,
+        avg: bool = True,
+        rms: bool = True,
+        clip: float = 0.0005,
+        c: float = 1.0,
+        divide_by: str = "mean",
+        center: bool = False,
     ) -> None:
         super().__init__()
         if divide_by not in ("mean", "var"):
             raise ValueError(f"divide_by must be 'mean' or 'var', got {divide_by!r}")
         self.k, self.avg, self.use_rms, self.clip, self.c, self.divide_by = k, avg, rms, clip, c, divide_by
+        self.center = center
         self.rms = RunningMeanStd()
 
     def forward(self, source: th.Tensor, target: th.Tensor | None = None) -> th.Tensor:
@@ -107,7 +117,8 @@ class ParticleEntropy(nn.Module):
             x = x[:, -1:]
         if self.use_rms:
             self.rms.update(x.reshape(-1, 1))
-            x = x / (self.rms.mean if self.divide_by == "mean" else self.rms.var).clamp_min(MIN_DIVISOR)
+            divisor = (self.rms.mean if self.divide_by == "mean" else self.rms.var).clamp_min(MIN_DIVISOR)
+            x = (x - self.rms.mean if self.center else x) / divisor
         if self.clip >= 0:
             x = th.clamp_min(x - self.clip, 0.0)
         return th.log(self.c + x.mean(dim=1, keepdim=True))

@@ -33,7 +33,7 @@ STATES: tuple[str, ...] = ("done", "running", "failed", "pending")
 
 
 def all_methods() -> list[str]:
-    """``--methods all``: the nine unsupervised methods and ``ddpg`` (one name per class)."""
+    """``--methods all``: the ten unsupervised methods (URLB's nine and MOSS) and ``ddpg`` (one name per class)."""
     names: dict[type, str] = {}
     for name, cls in zoo.algorithms().items():
         names.setdefault(cls, name)
