@@ -7,6 +7,8 @@ Reads ``<study>/finetune/<label>/<task>/seed_<k>/result.json`` and ``eval.csv`` 
   score, and of the area under the learning curve (:func:`curve_area`); per method the IQM, median,
   mean and optimality gap of normalised scores over the runs x tasks matrix with stratified-bootstrap
   95% intervals (rliable, Agarwal et al., 2021); wall times;
+* against the published numbers (:func:`published_comparison`): each method's mean normalised score beside the
+  CIC paper's Table 6 (MOSS: its README's), and the rank correlation of the methods with its interval;
 * ``report.json``: the same numbers;
 * ``aggregates.png`` (rliable's ``plot_interval_estimates``; ``aggregates_1.png``, ... for the
   comparisons over smaller task sets) and ``learning_curves.png``
@@ -195,6 +197,63 @@ def aggregate_scores(
     }
 
 
+def published_comparison(results: list[dict[str, Any]], reps: int = 2000, seed: int = 0) -> dict[str, Any] | None:
+    """This study's methods against the CIC paper's Table 6 (:data:`~sb3_cic.constants.PUBLISHED_RETURNS`).
+
+    Per method (a label fine-tuned from its final snapshot, ``ddpg`` from scratch) that Table 6 lists: the mean
+    normalised score over the tasks it ran (each task's mean over seeds), beside Table 6's on the same tasks
+    (published mean return / expert score); MOSS beside its README's (:data:`~sb3_cic.constants.MOSS_PUBLISHED_RETURNS`).
+    Over the Table 6 methods that ran the same tasks, Spearman's rank correlation of the two, with a 95% percentile
+    interval from ``reps`` bootstrap resamples of each (method, task)'s seeds. None without a listed method.
+
+    :param results: fine-tuning results (:func:`load_results`)
+    :param reps: bootstrap replications
+    :param seed: seed of the bootstrap
+    :return: ``{"tasks", "methods": [{"method", "tasks", "ours", "published", "source"}], "spearman", "low", "high",
+        "ranked"}``
+    """
+    from scipy.stats import spearmanr
+
+    from sb3_cic.constants import EXPERT_SCORES, MOSS_PUBLISHED_RETURNS, PUBLISHED_RETURNS
+
+    scores: dict[str, dict[str, list[float]]] = defaultdict(lambda: defaultdict(list))
+    for result in results:
+        if "@" not in result["label"] and result["final_normalized_score"] is not None:
+            scores[result["label"]][result["task"]].append(result["final_normalized_score"])
+    rows = []
+    for label, tasks in sorted(scores.items()):
+        table, source = (
+            (PUBLISHED_RETURNS.get(label), "Table 6") if label in PUBLISHED_RETURNS else (MOSS_PUBLISHED_RETURNS.get(label), "MOSS")
+        )
+        names = sorted(tasks)
+        if table is None or not all(task in table for task in names):
+            continue
+        published = float(np.mean([table[task][0] / EXPERT_SCORES[task] for task in names]))
+        ours = float(np.mean([np.mean(tasks[task]) for task in names]))
+        rows.append({"method": label, "tasks": names, "ours": ours, "published": published, "source": source})
+    if not rows:
+        return None
+    # the rank correlation over the Table 6 methods of the most common task set
+    sets = [tuple(r["tasks"]) for r in rows if r["source"] == "Table 6"]
+    common = max(set(sets), key=sets.count) if sets else ()
+    ranked = [r for r in rows if r["source"] == "Table 6" and tuple(r["tasks"]) == common]
+    out: dict[str, Any] = {"tasks": list(common), "methods": rows, "ranked": [r["method"] for r in ranked]}
+    out["spearman"] = out["low"] = out["high"] = None
+    if len(ranked) >= 3:
+        published = [r["published"] for r in ranked]
+        out["spearman"] = float(spearmanr([r["ours"] for r in ranked], published).statistic)
+        rng = np.random.default_rng(seed)
+        draws = []
+        for _ in range(reps):
+            means = [
+                np.mean([np.mean(rng.choice(scores[r["method"]][task], len(scores[r["method"]][task]))) for task in common])
+                for r in ranked
+            ]
+            draws.append(spearmanr(means, published).statistic)
+        out["low"], out["high"] = (float(q) for q in np.nanpercentile(draws, [2.5, 97.5]))
+    return out
+
+
 def _fmt(value: float | None, digits: int = 3) -> str:
     return "–" if value is None or (isinstance(value, float) and math.isnan(value)) else f"{value:.{digits}f}"
 
@@ -326,6 +385,31 @@ def write_report(study: str | Path, reps: int = 2000, seed: int = 0) -> dict[str
             lines.append(f"| {label} | {len(seeds_of[label])} x {len(tasks)} | " + " | ".join(cells) + " |")
         plot_aggregates(aggregates, study / figure)
         lines += ["", f"![aggregates]({figure})", ""]
+    published = published_comparison(results, reps=reps, seed=seed)
+    if published:
+        lines += [
+            "## Against the published numbers",
+            "",
+            "Mean normalised score over the tasks each method ran (each task's mean over seeds; from the final snapshot), "
+            "beside the same mean of the published returns: the CIC paper's Table 6 (URLB's code, 2M pre-training "
+            "steps, full size, 10 seeds) and, for MOSS, its README.",
+            "",
+            "| method | tasks | this study | published | source |",
+            "|---|---:|---:|---:|---|",
+        ]
+        for row in published["methods"]:
+            lines.append(
+                f"| {row['method']} | {len(row['tasks'])} | {_fmt(row['ours'])} | {_fmt(row['published'])} | {row['source']} |"
+            )
+        if published["spearman"] is not None:
+            lines += [
+                "",
+                f"Spearman's rank correlation over the {len(published['ranked'])} Table 6 methods on "
+                f"{', '.join(published['tasks'])}: {_fmt(published['spearman'])} "
+                f"[{_fmt(published['low'])}, {_fmt(published['high'])}] (95% interval, {reps} bootstrap resamples of "
+                "each method's seeds per task).",
+            ]
+        lines.append("")
     plot_learning_curves(results, study / "learning_curves.png")
     lines += ["## Learning curves", "", "![learning curves](learning_curves.png)", "", "## Wall time", ""]
     lines += ["| method | task | pre-training (s) | fine-tuning per run (s) |", "|---|---|---:|---:|"]
@@ -346,6 +430,7 @@ def write_report(study: str | Path, reps: int = 2000, seed: int = 0) -> dict[str
             }
             for tasks, matrices, seeds_of, aggregates in groups
         ],
+        "published": published,
     }
     (study / "report.json").write_text(json.dumps(report, indent=2, default=float))
     return report

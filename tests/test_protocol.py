@@ -305,3 +305,31 @@ def test_run_killed_before_deleting_its_checkpoint_ends_clean(study: Path, tmp_p
     _run_study(folder)
     assert not list(folder.rglob("checkpoint*")) and not list(folder.rglob("progress.json"))
     assert {p: p.read_text() for p in folder.glob("**/result.json")} == results  # done: nothing ran again
+
+
+def _synthetic(label: str, task: str, seed: int, score: float) -> dict:
+    return {"label": label, "method": label.split("@")[0], "task": task, "seed": seed, "final_normalized_score": score}
+
+
+def test_published_comparison_against_table_6():
+    from sb3_cic.constants import EXPERT_SCORES, MOSS_PUBLISHED_RETURNS, PUBLISHED_RETURNS
+
+    tasks = ("quadruped_stand", "quadruped_walk")
+    methods = ("apt", "cic", "ddpg", "smm")
+    published = {m: np.mean([PUBLISHED_RETURNS[m][t][0] / EXPERT_SCORES[t] for t in tasks]) for m in methods}
+    results = [_synthetic(m, t, s, PUBLISHED_RETURNS[m][t][0] / EXPERT_SCORES[t] + 0.01 * (s - 1))
+               for m in methods for t in tasks for s in range(3)]
+    results += [_synthetic("cic@100000", t, 0, 0.0) for t in tasks]  # an intermediate snapshot: not compared
+    results += [_synthetic("moss", "quadruped_stand", s, 0.5) for s in range(2)]
+    out = evaluation.published_comparison(results, reps=200)
+    rows = {r["method"]: r for r in out["methods"]}
+    assert set(rows) == {*methods, "moss"} and rows["moss"]["source"] == "MOSS"
+    assert rows["moss"]["published"] == pytest.approx(MOSS_PUBLISHED_RETURNS["moss"]["quadruped_stand"][0] / 920)
+    for m in methods:
+        assert rows[m]["published"] == pytest.approx(published[m]) and rows[m]["ours"] == pytest.approx(published[m])
+    assert out["ranked"] == sorted(methods) and out["tasks"] == list(tasks)
+    assert out["spearman"] == pytest.approx(1.0) and out["low"] == pytest.approx(1.0) and out["high"] == pytest.approx(1.0)
+    # the opposite order: -1
+    order = sorted(methods, key=published.get)
+    flipped = [dict(r, final_normalized_score=order.index(r["label"]) * -0.1) for r in results if r["label"] in methods]
+    assert evaluation.published_comparison(flipped, reps=50)["spearman"] == pytest.approx(-1.0)
