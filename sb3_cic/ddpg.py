@@ -21,7 +21,7 @@ from sb3_cic.common.env_util import check_finite_step, env_id_of, prepare_env
 from sb3_cic.common.fast_update import UpdateMetrics, compiled_step
 from sb3_cic.common.method import MethodMixin
 from sb3_cic.common.rollout import LeanRolloutMixin
-from sb3_cic.common.save_util import SavedModel, package_version, read_saved_data
+from sb3_cic.common.save_util import SavedModel, is_optimizer_state, package_version, read_saved_data
 from sb3_cic.common.skill_mixin import SkillMixin
 from sb3_cic.finetune import start_finetuning, with_finetune_callback
 from sb3_cic.policies import URLBPolicy, min_q, normalize_policy_kwargs
@@ -350,7 +350,7 @@ class URLBDDPG(MethodMixin, SkillMixin, LeanRolloutMixin, DDPG):
         leave the optimisers fresh."""
         if exact_match and isinstance(load_path_or_dict, dict):
             missing = set(self._get_torch_save_params()[0]) - set(load_path_or_dict)
-            networks = sorted(name for name in missing if not name.endswith("optimizer"))
+            networks = sorted(name for name in missing if not is_optimizer_state(name))
             if networks:  # a RuntimeError, which load reports as a snapshot that does not fit
                 raise RuntimeError(f"the saved parameters lack {networks}")
             exact_match = not missing

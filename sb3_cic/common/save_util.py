@@ -40,6 +40,12 @@ def read_saved_data(path: Any, custom_objects: dict[str, Any] | None = None) -> 
             file.close()
 
 
+def is_optimizer_state(name: str) -> bool:
+    """Whether a saved model's state dict (``actor.optimizer``) or its file (``actor.optimizer.pth``) is an
+    optimiser's state."""
+    return name.removesuffix(".pth").endswith("optimizer")
+
+
 def networks_only(path: str | Path, out: str | Path | None = None) -> Path:
     """Copy a saved model without its optimiser states (``*optimizer.pth``): a snapshot of the networks, the
     reward module and the attributes, about half the size, that :meth:`~sb3_cic.ddpg.URLBDDPG.load` and
@@ -52,7 +58,7 @@ def networks_only(path: str | Path, out: str | Path | None = None) -> Path:
     path = Path(path)
     out = path if out is None else Path(out)
     with zipfile.ZipFile(path) as archive:
-        entries = [(info, archive.read(info)) for info in archive.infolist() if not info.filename.endswith("optimizer.pth")]
+        entries = [(info, archive.read(info)) for info in archive.infolist() if not is_optimizer_state(info.filename)]
     with tempfile.NamedTemporaryFile(dir=out.parent, suffix=".zip", delete=False) as file:
         with zipfile.ZipFile(file, "w", zipfile.ZIP_DEFLATED) as archive:
             for info, content in entries:
