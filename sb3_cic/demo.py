@@ -1,4 +1,4 @@
-"""The main job at CPU size: a pre-trained CIC walker fine-tuned on a task beside DDPG from scratch.
+"""The main job at CPU size: a pre-trained CIC fine-tuned on a task beside DDPG from scratch.
 
 Run with ``python -m sb3_cic.demo`` (``make demo``). The package ships a CIC snapshot pre-trained
 reward-free on ``URLB/walker-v0`` (hidden 256, batch 256, 100k steps; ``sb3_cic/pretrained/``). The demo
@@ -13,7 +13,8 @@ curves, returns and normalised scores, and writes into ``--out``:
 
 The budgets are a few minutes of a 2-core CPU: far below URLB's 100k fine-tuning steps, so the scores
 show the start of learning, not the paper's numbers. ``--pretrain-steps N`` pre-trains a fresh CIC for
-N steps instead of using the shipped snapshot.
+N steps instead of using the shipped snapshot; ``--domain quadruped`` fine-tunes a quadruped snapshot
+(``--snapshot``) on quadruped stand.
 """
 
 from __future__ import annotations
@@ -30,11 +31,15 @@ from sb3_cic.protocol import evaluation_callback
 
 #: the shipped snapshot: CIC pre-trained reward-free on URLB/walker-v0, hidden 256, batch 256, 100k steps
 SNAPSHOT = Path(__file__).parent / "pretrained" / "cic_walker_h256_100k.zip"
+#: the shipped snapshot of each domain
+SNAPSHOTS = {"walker": SNAPSHOT}
+#: each domain's tasks, the demo's default first
+TASKS = {"walker": ("flip", "stand", "walk", "run"), "quadruped": ("stand", "walk", "run", "jump")}
 
 
-def pretrain(steps: int, out: Path, seed: int, hidden_dim: int = 256, batch_size: int = 256) -> Path:
-    """Pre-train a CIC on ``URLB/walker-v0`` for ``steps`` steps and save it under ``out``; return its path."""
-    model = CIC("MlpPolicy", "URLB/walker-v0", seed=seed, policy_kwargs={"hidden_dim": hidden_dim},
+def pretrain(steps: int, out: Path, seed: int, hidden_dim: int = 256, batch_size: int = 256, domain: str = "walker") -> Path:
+    """Pre-train a CIC on ``URLB/<domain>-v0`` for ``steps`` steps and save it under ``out``; return its path."""
+    model = CIC("MlpPolicy", f"URLB/{domain}-v0", seed=seed, policy_kwargs={"hidden_dim": hidden_dim},
                 batch_size=batch_size, buffer_size=max(steps, 1), learning_starts=min(4000, steps // 2))
     model.learn(steps, progress_bar=True)
     model.save(out / "cic_pretrained")
@@ -70,8 +75,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         ``(step, mean return, normalised score)`` list
     """
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--task", default="flip", choices=["stand", "walk", "run", "flip"], help="walker task to fine-tune on")
-    parser.add_argument("--snapshot", type=Path, default=SNAPSHOT, help="pre-trained CIC walker (default: the shipped one)")
+    parser.add_argument("--domain", default="walker", choices=sorted(TASKS), help="URLB domain")
+    parser.add_argument("--task", default=None, help="task of the domain to fine-tune on (default: walker flip, quadruped stand)")
+    parser.add_argument("--snapshot", type=Path, default=None, help="pre-trained CIC of the domain (default: the shipped one)")
     parser.add_argument("--pretrain-steps", type=int, default=0, help="pre-train a fresh CIC for this long instead")
     parser.add_argument("--hidden-dim", type=int, default=256, help="width of the fresh pre-training's networks")
     parser.add_argument("--batch-size", type=int, default=256, help="batch of the fresh pre-training")
@@ -84,17 +90,22 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=Path("demo_output"), help="folder for the video, the plot and the models")
     args = parser.parse_args(argv)
+    args.task = args.task or TASKS[args.domain][0]
+    if args.task not in TASKS[args.domain]:
+        parser.error(f"{args.domain} has no task {args.task!r}; its tasks: {', '.join(TASKS[args.domain])}")
+    if args.snapshot is None and args.pretrain_steps <= 0 and args.domain not in SNAPSHOTS:
+        parser.error(f"no snapshot of {args.domain} is shipped: give --snapshot or --pretrain-steps")
     if args.steps <= args.learning_starts or args.eval_every <= 0:
         parser.error(f"need --steps > --learning-starts and --eval-every > 0 (got {args.steps}, {args.learning_starts}, "
                      f"{args.eval_every})")
     args.out.mkdir(parents=True, exist_ok=True)
-    task, env_id = f"walker_{args.task}", f"URLB/walker-{args.task}-v0"
+    task, env_id = f"{args.domain}_{args.task}", f"URLB/{args.domain}-{args.task}-v0"
     start = time.time()
 
-    snapshot = args.snapshot
+    snapshot = args.snapshot or SNAPSHOTS.get(args.domain)
     if args.pretrain_steps > 0:
-        print(f"[0/4] pre-training CIC reward-free on URLB/walker-v0 for {args.pretrain_steps} steps ...", flush=True)
-        snapshot = pretrain(args.pretrain_steps, args.out, args.seed, args.hidden_dim, args.batch_size)
+        print(f"[0/4] pre-training CIC reward-free on URLB/{args.domain}-v0 for {args.pretrain_steps} steps ...", flush=True)
+        snapshot = pretrain(args.pretrain_steps, args.out, args.seed, args.hidden_dim, args.batch_size, args.domain)
     data = read_saved_data(snapshot)
     print(f"[1/4] snapshot {snapshot}: {data.get('algorithm', '?')} pre-trained reward-free on {data.get('env_id', '?')}, "
           f"hidden {data['policy_kwargs'].get('hidden_dim')}, batch {data['batch_size']}, {data['num_timesteps']} steps")

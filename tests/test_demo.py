@@ -40,3 +40,25 @@ def test_demo_fine_tunes_beside_ddpg_and_writes_the_curves(tmp_path, capsys):
 def test_demo_refuses_a_budget_shorter_than_its_random_steps(tmp_path):
     with pytest.raises(SystemExit):
         demo.main(["--steps", "1000", "--learning-starts", "4000", "--out", str(tmp_path)])
+
+
+def test_demo_on_quadruped(tmp_path, capsys):
+    snapshot = tmp_path / "tiny_quadruped"
+    pretrained = CIC("MlpPolicy", "URLB/quadruped-v0", policy_kwargs={"hidden_dim": 16}, batch_size=16,
+                     learning_starts=200, buffer_size=1000, skill_dim=4, seed=0)
+    pretrained.learn(300)
+    pretrained.save(snapshot)
+    result = demo.main(["--domain", "quadruped", "--snapshot", str(snapshot) + ".zip", "--steps", "500",
+                        "--learning-starts", "400", "--eval-every", "500", "--eval-episodes", "1", "--skills", "0",
+                        "--out", str(tmp_path / "out")])
+    assert [h[0] for h in result["CIC"]] == [0, 500]
+    assert result["CIC"][-1][2] == pytest.approx(result["CIC"][-1][1] / sb3_cic.EXPERT_SCORES["quadruped_stand"])
+    assert "URLB/quadruped-stand-v0" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("argv, message", [(["--domain", "quadruped", "--task", "flip"], "has no task"),
+                                           (["--domain", "quadruped"], "no snapshot of quadruped")])
+def test_demo_refuses_a_task_or_snapshot_the_domain_lacks(tmp_path, capsys, argv, message):
+    with pytest.raises(SystemExit):
+        demo.main([*argv, "--out", str(tmp_path)])
+    assert message in capsys.readouterr().err
