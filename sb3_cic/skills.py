@@ -136,6 +136,13 @@ class SphereSkillPrior(SkillPrior):
 MOSS_SKILL_MODES = ("half", "sign")
 
 
+def check_skill_mode(skill_mode: str) -> str:
+    """Return ``skill_mode``, or raise ``ValueError`` if it is not one of :data:`MOSS_SKILL_MODES`."""
+    if skill_mode not in MOSS_SKILL_MODES:
+        raise ValueError(f"skill_mode must be one of {MOSS_SKILL_MODES}, got {skill_mode!r}")
+    return skill_mode
+
+
 def control_mask(skills: th.Tensor, skill_mode: str) -> th.Tensor:
     """Which skills of a batch ``(B, dim)`` are control skills of :class:`MixtureSkillPrior` (``(B, 1)`` bool).
 
@@ -172,9 +179,7 @@ class MixtureSkillPrior(SkillPrior):
 
     def __init__(self, dim: int = 32, partitions: float = 2, skill_mode: str = "half", episode_length: int = 1000) -> None:
         super().__init__(dim, -1.0, 1.0)
-        if skill_mode not in MOSS_SKILL_MODES:
-            raise ValueError(f"skill_mode must be one of {MOSS_SKILL_MODES}, got {skill_mode!r}")
-        if skill_mode == "half" and dim < 2:
+        if check_skill_mode(skill_mode) == "half" and dim < 2:
             raise ValueError(f"skill_mode 'half' needs a skill of at least 2 coordinates, got dim {dim}")
         if not partitions > 0 or episode_length // partitions < 1:
             raise ValueError(f"partitions must be > 0 and at most episode_length ({episode_length}), got {partitions}")

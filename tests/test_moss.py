@@ -117,11 +117,17 @@ def test_bad_prior_arguments_are_refused(kwargs, message):
         MixtureSkillPrior(**kwargs)
 
 
+def test_the_reward_module_refuses_an_unknown_skill_mode():
+    with pytest.raises(ValueError, match="skill_mode must be one of"):
+        MOSSReward(STATE, ACT, skill_dim=SKILL, hidden_dim=16, skill_mode="both")
+
+
 def test_the_sweep_grid_is_moss_grid_search():
     grid = MixtureSkillPrior(4).grid(80)
     assert grid.shape == (80, 4) and (grid == grid[:, :1]).all()
     np.testing.assert_allclose(grid[:, 0], np.linspace(-1, 0, 80), rtol=0, atol=1e-7)
-    assert [MixtureSkillPrior(4).validate(z) is not None for z in grid[[0, -1]]] == [True, True]
+    for z in grid[[0, -1]]:  # the prior's bounds admit the grid's ends
+        np.testing.assert_array_equal(MixtureSkillPrior(4).validate(z), z)
 
 
 # the reward --------------------------------------------------------------------------------------

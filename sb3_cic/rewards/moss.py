@@ -6,7 +6,7 @@ import torch as th
 from stable_baselines3.common.type_aliases import ReplayBufferSamples
 
 from sb3_cic.rewards.cic import CICReward
-from sb3_cic.skills import MOSS_SKILL_MODES, control_mask
+from sb3_cic.skills import check_skill_mode, control_mask
 
 #: the embeddings MOSS's particle reward measures against the batch's ``g1(s')`` (see :class:`MOSSReward`)
 KNN_SOURCES = ("state", "next_state")
@@ -62,8 +62,7 @@ class MOSSReward(CICReward):
     ) -> None:
         if knn_source not in KNN_SOURCES:
             raise ValueError(f"knn_source must be one of {KNN_SOURCES}, got {knn_source!r}")
-        if skill_mode not in MOSS_SKILL_MODES:
-            raise ValueError(f"skill_mode must be one of {MOSS_SKILL_MODES}, got {skill_mode!r}")
+        check_skill_mode(skill_mode)
         super().__init__(
             state_dim, action_dim, skill_dim, hidden_dim, embed_dim, lr, temperature, knn_k, knn_clip, knn_avg, knn_rms,
             variant,
