@@ -34,12 +34,15 @@ under ``torch.compile`` (``critic_loss``, ``actor_loss`` and the reward module's
 ``--loop`` measures the acting loop instead (DDPG and CIC of ``--methods``, hidden 256 and 1024 or
 ``--loop-hidden``; one fresh process each), per env step, fastest of ``--repeats`` chunks of ``--loop-steps``
 steps timed in turns: ``env`` the underlying gymnasium env's own ``step`` (``URLB/walker-stand-v0`` or
-``URLB/walker-v0``, no wrapper, reset at episode ends, uniform random actions), ``actor`` one forward pass of the
-actor for one observation (``no_grad``), and ``learn()`` with ``gradient_steps=0`` and ``learning_starts=0``
-(the policy acts, with its noise, at every step; warmed up first) with ``speed_options.lean_loop`` on
-(``lean``) and off (``sb3``), and their ratios to ``env + actor``; ``pair`` is the actor and the env in turn
-with nothing else (each acting on the other's last output): what the two cost when they alternate, their
-caches shared, the floor of any acting loop.
+``URLB/walker-v0``, no wrapper, reset at episode ends) replaying the trajectory of the latest ``lean`` chunk (its
+episode start from the env's checkpoint, its actions; checked to give the observations that ``learn()`` stored,
+bit for bit), ``env rnd`` the same env on uniform random actions (another trajectory, so another cost of the
+physics: the bound of earlier runs), ``actor`` one forward pass of the actor for one observation (``no_grad``), and
+``learn()`` with ``gradient_steps=0`` and ``learning_starts=0`` (the policy acts, with its noise, at every step;
+warmed up first) with ``speed_options.lean_loop`` on (``lean``) and off (``sb3``), and their ratios to
+``env + actor``; ``pair`` is the actor and the env in turn with nothing else (each acting on the other's last
+output), a floor of any acting loop. ``--loop-steps`` is a multiple of the episode length, so that each chunk
+starts at an episode start.
 
 ``--fast`` puts each method's eager update beside ``compile_update=True`` (one fresh process per method and
 size): update ms, ``learn()`` env steps/s over ``--learn-steps`` (one update every 2 env steps), hours per 2M
@@ -311,14 +314,39 @@ def measure_loop(method: str, hidden: int, repeats: int, steps: int, threads: in
     )
     raw_env = model.env.envs[0].unwrapped  # the gymnasium env below the skill wrapper and Monitor
     raw_env.reset(seed=1)
-    actions = np.random.default_rng(0).uniform(-1, 1, (steps, *raw_env.action_space.shape)).astype(np.float32)
+    random_actions = np.random.default_rng(0).uniform(-1, 1, (steps, *raw_env.action_space.shape)).astype(np.float32)
     obs = model.observation_space.sample()[None]
+    buffer = model.replay_buffer
+    state_dim = raw_env.observation_space.shape[0]
+    lean_run: dict[str, Any] = {}  # the episode start and the actions of the latest lean learn() chunk
 
-    def env_steps() -> None:
-        for action in actions:
-            _, _, terminated, truncated, _ = raw_env.step(action)
+    def replay(actions: np.ndarray) -> np.ndarray:
+        """The raw env's steps on ``actions`` (reset at episode ends); the observations."""
+        observations = np.empty((len(actions), state_dim), np.float32)
+        for i, action in enumerate(actions):
+            observations[i], _, terminated, truncated, _ = raw_env.step(action)
             if terminated or truncated:
                 raw_env.reset()
+        return observations
+
+    def at_episode_start(fn: Callable[[], None]) -> Callable[[], None]:
+        """``fn``, after which the env is put back at the episode start it was at (learn() goes on from there)."""
+
+        def run() -> None:
+            start = raw_env.get_checkpoint_state()
+            try:
+                fn()
+            finally:
+                raw_env.set_checkpoint_state(start)
+
+        return run
+
+    def env_steps() -> None:  # the trajectory of the latest lean learn() chunk, replayed
+        raw_env.set_checkpoint_state(lean_run["start"])
+        lean_run["replayed"] = replay(lean_run["actions"])
+
+    def env_random_actions() -> None:
+        replay(random_actions)
 
     def actor_steps() -> None:
         actor = model.policy.actor
@@ -338,16 +366,33 @@ def measure_loop(method: str, hidden: int, repeats: int, steps: int, threads: in
 
     def learn(lean: bool) -> Callable[[], None]:
         def run() -> None:
+            start, first = raw_env.get_checkpoint_state(), buffer.pos
             with speed_options.override(lean_loop=lean):
                 model.learn(steps, reset_num_timesteps=False)
+            if lean:
+                rows = np.arange(first, first + steps) % buffer.buffer_size
+                actions = model.policy.unscale_action(buffer.actions[rows, 0])  # what the env was given
+                lean_run.update(start=start, actions=actions, next_obs=buffer.next_observations[rows, 0])
 
         return run
 
+    # chunks of whole episodes: each learn() chunk starts at an episode start, where the env's checkpoint replays it
+    if steps % int(raw_env.dm_env._step_limit):
+        raise ValueError(f"--loop-steps must be a multiple of the episode length, got {steps}")
     best = best_times(
-        {"env": env_steps, "actor": actor_steps, "pair": alternating, "lean": learn(True), "sb3": learn(False)},
+        {
+            "lean": learn(True), "sb3": learn(False), "env": at_episode_start(env_steps),
+            "env_random": at_episode_start(env_random_actions), "actor": actor_steps,
+            "pair": at_episode_start(alternating),
+        },
         th.device("cpu"),
         repeats,
     )
+    # the replay is the lean chunk's trajectory: the same observations as learn() stored (truncated episode ends:
+    # the stored next observation is the terminal one, as the replay's)
+    gap = float(np.abs(lean_run["replayed"] - lean_run["next_obs"][:, :state_dim]).max())
+    if gap > 0:
+        raise RuntimeError(f"the raw env's replay left learn()'s trajectory (observations differ by up to {gap})")
     return {name: seconds * 1e3 / steps for name, seconds in best.items()}
 
 
@@ -687,18 +732,16 @@ def print_loop_table(args: argparse.Namespace) -> None:
     """The ``--loop`` table: ms per env step, and ``learn`` over ``env + actor``."""
     print(f"torch {th.__version__}, cpu, {args.threads} threads; ms per env step, fastest of {args.repeats} turns of "
           f"{args.loop_steps} steps; x: over env + actor")
-    columns = ["env", "actor", "pair", "sb3", "lean", "pair x", "sb3 x", "lean x"]
+    columns = ["env", "env rnd", "actor", "pair", "sb3", "lean", "pair x", "sb3 x", "lean x"]
     header = f"{'method':<8}{'hidden':>7}" + "".join(f"{name:>8}" for name in columns)
     print(header + "\n" + "-" * len(header))
     for method in [m for m in args.methods if m in LOOP_METHODS]:
         for hidden in args.loop_hidden:
             r = _in_fresh_process(measure_loop, method, hidden, args.repeats, args.loop_steps, args.threads)
             bound = r["env"] + r["actor"]
-            print(
-                f"{method:<8}{hidden:>7}{r['env']:>8.3f}{r['actor']:>8.3f}{r['pair']:>8.3f}{r['sb3']:>8.3f}{r['lean']:>8.3f}"
-                f"{r['pair'] / bound:>7.2f}x{r['sb3'] / bound:>7.2f}x{r['lean'] / bound:>7.2f}x",
-                flush=True,
-            )
+            times = "".join(f"{r[name]:>8.3f}" for name in ("env", "env_random", "actor", "pair", "sb3", "lean"))
+            ratios = "".join(f"{r[name] / bound:>7.2f}x" for name in ("pair", "sb3", "lean"))
+            print(f"{method:<8}{hidden:>7}{times}{ratios}", flush=True)
 
 
 def main() -> None:
