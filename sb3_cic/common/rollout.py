@@ -26,6 +26,7 @@ from torch import nn
 from torch.nn.modules import module as torch_module
 
 from sb3_cic.common.env_util import check_finite_step
+from sb3_cic.common.fast_update import GraphedActor
 from sb3_cic.policies import URLBActor
 from sb3_cic.speed import LeanSequential, speed_options
 
@@ -47,7 +48,8 @@ class LeanRolloutMixin:
 
     * the action, where URLBDDPG's ``_sample_action`` acts with :func:`~sb3_cic.speed.lean_action`: the actor's
       layers as plain function calls (:class:`ActorCall`) on the pending observation (shared with torch on the
-      CPU), SB3's rescaling round trip on the action bounds read once (:func:`unit_rescale` on [-1, 1] bounds)
+      CPU; with ``compile_update`` on CUDA, the actor replayed as one CUDA graph,
+      :class:`~sb3_cic.common.fast_update.GraphedActor`), SB3's rescaling round trip on the action bounds read once (:func:`unit_rescale` on [-1, 1] bounds)
       and SB3's gaussian noise drawn with scalar arguments (:func:`normal_noise`); a model or policy class with
       its own ``_sample_action``, ``scale_action`` or ``unscale_action``: those are called;
     * the env step, on a plain ``DummyVecEnv`` of one env: that env's ``step`` (its wrappers, Monitor included)
@@ -74,6 +76,7 @@ class LeanRolloutMixin:
     _vec_normalize_env: Any
     use_sde: bool
     warmup_with_policy: bool
+    compile_update: Any
 
     def collect_rollouts(  # type: ignore[override]
         self,
@@ -174,6 +177,8 @@ class LeanRolloutMixin:
         draw = normal_noise(action_noise)
         shape = (-1, *policy.action_space.shape)
         actor_call = [ActorCall(policy.actor)]
+        # compile_update on CUDA: the actor as a CUDA graph (GraphedActor), captured at the first action
+        graphed: list[GraphedActor | None] = [None] if self.compile_update and policy.device.type == "cuda" else []
 
         def lean(learning_starts: int, noise: Any) -> tuple[np.ndarray, np.ndarray]:
             obs = self._last_obs
@@ -183,8 +188,14 @@ class LeanRolloutMixin:
             call = actor_call[0]
             if call.actor is not policy.actor:  # a new actor
                 call = actor_call[0] = ActorCall(policy.actor)
-            if call.on_cpu() and obs.dtype == np.float32 and obs.flags.c_contiguous:
+            plain_obs = obs.dtype == np.float32 and obs.flags.c_contiguous
+            if call.on_cpu() and plain_obs:
                 mu = call(th.from_numpy(obs)).numpy()  # th.as_tensor(obs).float(), without its conversions
+            elif graphed and plain_obs and call.plain():
+                graph = graphed[0]
+                if graph is None or not graph.current(policy.actor, obs.shape):
+                    graph = graphed[0] = GraphedActor(policy.actor, obs.shape)
+                mu = graph(obs)
             else:
                 mu = call(th.as_tensor(obs, device=policy.device).float()).cpu().numpy()
             return rescale(mu.reshape(shape), draw if noise is action_noise else noise)
@@ -303,6 +314,13 @@ class ActorCall:
         return list(map(len, self._containers)) == self._lengths and all(
             map(operator.is_, map(dict.get, self._dicts, self._keys), self._values)
         )
+
+    def plain(self) -> bool:
+        """Whether a call runs the layers' functions (the actor and its modules as read, no hooks, no tracing): what a
+        :class:`~sb3_cic.common.fast_update.GraphedActor` may capture."""
+        if self._ops is not None and not self._current():
+            self._read()
+        return self._ops is not None and self._plain()
 
     def on_cpu(self) -> bool:
         """Whether the actor's layers run as plain calls on the CPU (its first weight is there)."""
