@@ -1,5 +1,5 @@
-# make demo: the shipped CIC walker snapshot fine-tuned on walker flip beside DDPG from scratch; prints both
-#            scores, writes the learning curves and a skill video to demo_output/ (CPU)
+# make demo: the shipped CIC quadruped snapshot fine-tuned on quadruped stand beside DDPG from scratch; prints
+#            both scores, writes the learning curves and a skill video to demo_output/ (CPU)
 # make test: the test suite
 # make docs: the documentation site (Sphinx, warnings as errors) into docs/_build/html
 # Each creates the virtual environment .venv and installs the project into it on first use.

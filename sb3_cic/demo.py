@@ -1,10 +1,12 @@
 """The main job at CPU size: a pre-trained CIC fine-tuned on a task beside DDPG from scratch.
 
-Run with ``python -m sb3_cic.demo`` (``make demo``). The package ships a CIC snapshot pre-trained
-reward-free on ``URLB/walker-v0`` (hidden 256, batch 256, 100k steps; ``sb3_cic/pretrained/``). The demo
-fine-tunes it on walker flip (the paper's skill grid sweep first) and trains DDPG from scratch with the
-same networks, batch and budget, evaluating both every ``--eval-every`` steps. It prints both learning
-curves, returns and normalised scores, and writes into ``--out``:
+Run with ``python -m sb3_cic.demo`` (``make demo``). The package ships two CIC snapshots pre-trained
+reward-free (``sb3_cic/pretrained/``, hidden 256, batch 256): on ``URLB/quadruped-v0`` for 500k steps (the
+quadruped study's, ``docs/results/quadruped_reduced``) and on ``URLB/walker-v0`` for 100k steps. The demo
+fine-tunes the quadruped one on quadruped stand (the paper's skill grid sweep first; the task where the study's
+CIC is furthest ahead of DDPG after 10k steps) and trains DDPG from scratch with the same networks, batch and
+budget, evaluating both every ``--eval-every`` steps. It prints both learning curves, returns and normalised
+scores, and writes into ``--out``:
 
 * ``learning_curves.png``: return against fine-tuning steps, CIC and DDPG;
 * ``skills.mp4``: the snapshot's policy under 9 skills side by side, 150 steps each (needs OpenGL: ``MUJOCO_GL=egl``;
@@ -12,9 +14,9 @@ curves, returns and normalised scores, and writes into ``--out``:
 * the fine-tuned models.
 
 The budgets are a few minutes of a 2-core CPU: far below URLB's 100k fine-tuning steps, so the scores
-show the start of learning, not the paper's numbers. ``--pretrain-steps N`` pre-trains a fresh CIC for
-N steps instead of using the shipped snapshot; ``--domain quadruped`` fine-tunes a quadruped snapshot
-(``--snapshot``) on quadruped stand.
+show the start of learning, not the paper's numbers. ``--domain walker`` fine-tunes the walker snapshot on
+walker flip; ``--snapshot`` another snapshot of the domain; ``--pretrain-steps N`` pre-trains a fresh CIC for
+N steps instead.
 """
 
 from __future__ import annotations
@@ -29,10 +31,12 @@ from sb3_cic.common.save_util import read_saved_data
 from sb3_cic.constants import EXPERT_SCORES
 from sb3_cic.protocol import evaluation_callback
 
-#: the shipped snapshot: CIC pre-trained reward-free on URLB/walker-v0, hidden 256, batch 256, 100k steps
-SNAPSHOT = Path(__file__).parent / "pretrained" / "cic_walker_h256_100k.zip"
-#: the shipped snapshot of each domain
-SNAPSHOTS = {"walker": SNAPSHOT}
+#: the shipped snapshot of each domain: CIC pre-trained reward-free on URLB/<domain>-v0, hidden 256, batch 256
+#: (quadruped: the quadruped study's 500k-step snapshot, networks only; walker: 100k steps)
+SNAPSHOTS = {
+    "quadruped": Path(__file__).parent / "pretrained" / "cic_quadruped_h256_500k.zip",
+    "walker": Path(__file__).parent / "pretrained" / "cic_walker_h256_100k.zip",
+}
 #: each domain's tasks, the demo's default first
 TASKS = {"walker": ("flip", "stand", "walk", "run"), "quadruped": ("stand", "walk", "run", "jump")}
 
@@ -75,8 +79,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         ``(step, mean return, normalised score)`` list
     """
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--domain", default="walker", choices=sorted(TASKS), help="URLB domain")
-    parser.add_argument("--task", default=None, help="task of the domain to fine-tune on (default: walker flip, quadruped stand)")
+    parser.add_argument("--domain", default="quadruped", choices=sorted(TASKS), help="URLB domain")
+    parser.add_argument("--task", default=None, help="task of the domain (default: quadruped stand, walker flip)")
     parser.add_argument("--snapshot", type=Path, default=None, help="pre-trained CIC of the domain (default: the shipped one)")
     parser.add_argument("--pretrain-steps", type=int, default=0, help="pre-train a fresh CIC for this long instead")
     parser.add_argument("--hidden-dim", type=int, default=256, help="width of the fresh pre-training's networks")
@@ -93,8 +97,6 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     args.task = args.task or TASKS[args.domain][0]
     if args.task not in TASKS[args.domain]:
         parser.error(f"{args.domain} has no task {args.task!r}; its tasks: {', '.join(TASKS[args.domain])}")
-    if args.snapshot is None and args.pretrain_steps <= 0 and args.domain not in SNAPSHOTS:
-        parser.error(f"no snapshot of {args.domain} is shipped: give --snapshot or --pretrain-steps")
     if args.steps <= args.learning_starts or args.eval_every <= 0:
         parser.error(f"need --steps > --learning-starts and --eval-every > 0 (got {args.steps}, {args.learning_starts}, "
                      f"{args.eval_every})")
@@ -102,7 +104,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     task, env_id = f"{args.domain}_{args.task}", f"URLB/{args.domain}-{args.task}-v0"
     start = time.time()
 
-    snapshot = args.snapshot or SNAPSHOTS.get(args.domain)
+    snapshot = args.snapshot or SNAPSHOTS[args.domain]
     if args.pretrain_steps > 0:
         print(f"[0/4] pre-training CIC reward-free on URLB/{args.domain}-v0 for {args.pretrain_steps} steps ...", flush=True)
         snapshot = pretrain(args.pretrain_steps, args.out, args.seed, args.hidden_dim, args.batch_size, args.domain)
