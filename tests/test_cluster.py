@@ -158,7 +158,8 @@ def test_node_removed_after_first_checkpoint_the_run_resumes_on_another_node(clu
         def a_run_checkpointed() -> bool:
             checkpointed.update({s: read_progress(f) for s, f in folders.items()
                                  if (f / "checkpoint.zip").exists() and read_progress(f).get("checkpoint_step")})
-            return bool(checkpointed)
+            # and the other run has started (on a loaded machine it may start after the first checkpoint)
+            return bool(checkpointed) and all(read_progress(f).get("pid") for f in folders.values())
 
         wait_for(a_run_checkpointed, 300, driver, log)
         seed, progress = next(iter(checkpointed.items()))
