@@ -317,3 +317,17 @@ def test_aps_regression_recovers_linear_task():
     assert float(np.dot(small.regress(), w_true.numpy())) > 0.99
     # the swapped system lstsq(r, phi) does not recover it in general; ours does on any exact data
     assert float(np.dot(regress_task(phi, phi @ w_true), w_true.numpy())) > 0.999
+
+
+def test_smm_vae_stays_finite_on_large_states():
+    """Quadruped's raw states reach |s| ~ 300: the VAE's ``exp(log var)`` must not overflow."""
+    th.manual_seed(0)
+    module = SMMReward(STATE, ACT, skill_dim=4, hidden_dim=8, vae_hidden_dim=150, code_dim=128)
+    batch = make_batch(64, skill=one_hot(64, 4))
+    scale = th.ones_like(batch.next_observations)
+    scale[:, :STATE] = 400.0
+    batch = batch._replace(observations=batch.observations * scale, next_observations=batch.next_observations * scale)
+    for _ in range(50):
+        reward, metrics = module.update_and_reward(batch)
+        assert th.isfinite(reward).all() and th.isfinite(metrics["vae_loss"])
+    assert all(th.isfinite(p).all() for p in module.parameters())

@@ -18,11 +18,19 @@ class SMMVAE(nn.Module):
 
     Encoder ``[s, z] -> h -> h -> (mu, log var)`` of size ``code_dim``; decoder ``code -> h -> h -> s``.
 
+    ``log var`` is clamped to ``logvar_range`` (not in the reference): raw quadruped states reach
+    ``|s| ~ 300`` (force/torque sensors), which puts ``log var`` near 50 at the first update and past
+    the float32 range of ``exp`` within a few dozen updates (seen on quadruped, batch and width 256:
+    reward ``inf`` after 33 updates, then NaN weights and a NaN action). The clamp leaves every
+    ``log var`` inside ``[-10, 10]`` as it was.
+
     :param state_dim: state size
     :param skill_dim: skill size
     :param hidden_dim: hidden width (150)
     :param code_dim: latent size (128)
     """
+
+    logvar_range = (-10.0, 10.0)
 
     def __init__(self, state_dim: int, skill_dim: int, hidden_dim: int = 150, code_dim: int = 128) -> None:
         super().__init__()
@@ -35,7 +43,7 @@ class SMMVAE(nn.Module):
     def forward(self, state: th.Tensor, skill: th.Tensor) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
         """Reconstruction of ``state`` from one sampled code, and the code's ``mu`` and ``log var``."""
         h = self.encoder(th.cat([state, skill], dim=1))
-        mu, logvar = self.enc_mu(h), self.enc_logvar(h)
+        mu, logvar = self.enc_mu(h), self.enc_logvar(h).clamp(*self.logvar_range)
         code = mu + th.randn_like(mu) * (0.5 * logvar).exp()
         return self.decoder(code), mu, logvar
 
@@ -51,7 +59,8 @@ class SMMReward(RewardModule):
 
     The reference code adds ``-log q(z|s)`` (the cross-entropy) instead of ``+log q(z|s)``, a sign
     slip against the SMM objective: not followed. It also reconstructs ``[s, z]`` and scores ``s``;
-    here the VAE reconstructs the state and everything is computed on ``s'``.
+    here the VAE reconstructs the state and everything is computed on ``s'``. The VAE's ``log var``
+    is clamped (see :class:`SMMVAE`), which the reference does not do.
 
     :param state_dim: state size
     :param action_dim: action size
