@@ -5,11 +5,9 @@ reward-free (``sb3_cic/pretrained/``, hidden 256, batch 256): on ``URLB/quadrupe
 quadruped study's, ``docs/results/quadruped_reduced``) and on ``URLB/walker-v0`` for 100k steps. The demo
 fine-tunes the quadruped one on quadruped stand for 20k steps (the paper's skill grid sweep first) and trains
 DDPG from scratch with the same networks, batch and budget, evaluating both as URLB does (10 deterministic
-episodes) every ``--eval-every`` steps. The task and the budget come from the study's committed runs: stand is
-where its CIC was furthest ahead of DDPG at 10k steps, and the shipped snapshot's own stand fine-tuning there
-(a re-creation of the study's snapshot) is at 291.7 after 10k steps, within reach of DDPG's three seeds
-(122.1-236.1), and at 520.1 after 20k, above all three (214.9-224.0). It prints both learning curves, returns
-and normalised scores, and writes into ``--out``:
+episodes) every ``--eval-every`` steps. The task and the budget come from the study's committed runs (the
+figures: ``docs/guide/quickstart.md``). It prints both learning curves, returns and normalised scores, and
+writes into ``--out``:
 
 * ``learning_curves.png``: return against fine-tuning steps, CIC and DDPG;
 * ``skills.mp4``: the snapshot's policy under 9 skills side by side, 150 steps each (needs OpenGL: ``MUJOCO_GL=egl``;
