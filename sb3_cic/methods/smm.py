@@ -21,8 +21,8 @@ class SMM(URLBDDPG):
 
     Deliberate deviations from the reference code: the reward adds ``+log q(z|s')`` as in the SMM
     objective (the code adds ``-log q(z|s)``, a sign slip); the VAE reconstructs the state only and
-    all terms are computed on ``s'``; the VAE's ``log var`` is clamped to ``[-10, 10]`` (without it the
-    pre-training on quadruped overflows to NaN within a hundred updates). Fine-tuning (our choice, like DIAYN): during the first ``learning_starts`` (4,000) steps each skill is fixed
+    all terms are computed on ``s'``; the VAE's ``log var`` is clamped to ``[-10, 10]`` (without it, one of three
+    quadruped pre-training seeds overflowed to NaN within a hundred updates). Fine-tuning (our choice, like DIAYN): during the first ``learning_starts`` (4,000) steps each skill is fixed
     in turn for ``learning_starts // 4`` steps, acting with the pre-trained policy, and the skill
     with the highest extrinsic return is kept (:class:`~sb3_cic.callbacks.SkillGridSweepCallback`). The
     reference has a one-episode-per-skill search, but it only runs while ``reward_free`` (in
