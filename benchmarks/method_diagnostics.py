@@ -11,7 +11,9 @@ markdown tables:
   reward module, a fresh copy for each rollout, so its running statistics start from the snapshot's), the
   particle entropy of the visited states (mean ``log(1 + mean 12-NN distance)`` on states divided by the
   random-action std per dimension) and where the body went (quadruped: 1 m cells of the torso's ground
-  position and the farthest distance from the start; walker: the torso height's range and the farthest x).
+  position and the farthest distance from the start; walker: the torso height's range and the farthest x) and
+  the share of the action entries at the bounds (``|a| > 0.99``: the deterministic action of the policies, before
+  the noise; the random actions themselves).
 
 A pre-training that optimises its objective earns more of its own reward than random actions; an
 exploration method should also cover more. ::
@@ -67,28 +69,30 @@ def body_position(env: Any) -> np.ndarray:
 
 def rollout(model: Any, steps: int, seed: int, random_actions: bool = False, noise: float = 0.2) -> dict[str, np.ndarray]:
     """``steps`` env steps in the model's own (reward-free, skill-wrapped) env: its deterministic action plus
-    Gaussian ``noise``, clipped (or uniformly random actions); observations with the skill, actions, episode ends
-    and torso positions."""
+    Gaussian ``noise``, clipped (or uniformly random actions); observations with the skill, actions, the actions
+    before the noise, episode ends and torso positions."""
     env = model.get_env()
     env.seed(seed)
     rng = np.random.default_rng(seed)
     obs = env.reset()
-    observations, actions, starts, positions = [], [], [], []
+    observations, actions, means, starts, positions = [], [], [], [], []
     start = True
     for _ in range(steps):
         if random_actions:
-            action = rng.uniform(-1, 1, size=(1, *model.action_space.shape))
+            mean = action = rng.uniform(-1, 1, size=(1, *model.action_space.shape))
         else:
-            action = model.predict(obs, deterministic=True)[0] + rng.normal(0, noise, size=(1, *model.action_space.shape))
+            mean = model.predict(obs, deterministic=True)[0]
+            action = mean + rng.normal(0, noise, size=(1, *model.action_space.shape))
         action = np.clip(action, -1, 1).astype(np.float32)
         observations.append(obs[0])
         actions.append(action[0])
+        means.append(mean[0])
         starts.append(start)
         positions.append(body_position(env))
         obs, _, done, _ = env.step(action)
         start = bool(done[0])
-    return {"obs": np.array(observations), "actions": np.array(actions), "starts": np.array(starts),
-            "positions": np.array(positions)}
+    return {"obs": np.array(observations), "actions": np.array(actions), "means": np.array(means),
+            "starts": np.array(starts), "positions": np.array(positions)}
 
 
 def transitions(data: dict[str, np.ndarray], n_step: int, state_dim: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -165,12 +169,13 @@ def main() -> None:
     print(f"## Its objective and its coverage on fresh rollouts ({args.steps} steps each)\n")
     print(f"Intrinsic reward: the snapshot's reward module on 20 random batches of {args.batch} {model.n_steps}-step "
           "transitions. Particle entropy: states divided by the random-action std per dimension.\n")
-    print("| rollout | intrinsic reward mean +- std | particle entropy of states | where the body went |")
-    print("|---|---:|---:|---|")
+    print("| rollout | intrinsic reward mean +- std | particle entropy of states | where the body went | actions at the bounds |")
+    print("|---|---:|---:|---|---:|")
     for name, run in runs.items():
         mean, std = intrinsic_reward(model, run, args.batch)
         entropy = particle_entropy(run["obs"][:, : model.state_dim], scale)
-        print(f"| {name} | {mean:.4g} +- {std:.3g} | {entropy:.3f} | {where_it_went(domain, run['positions'])} |")
+        bounds = np.mean(np.abs(run["means"]) > 0.99)
+        print(f"| {name} | {mean:.4g} +- {std:.3g} | {entropy:.3f} | {where_it_went(domain, run['positions'])} | {bounds:.1%} |")
 
 
 if __name__ == "__main__":
