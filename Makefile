@@ -1,4 +1,4 @@
-# make demo: the shipped CIC quadruped snapshot fine-tuned on quadruped stand beside DDPG from scratch; prints
+# make demo: the shipped CIC quadruped snapshot fine-tuned on quadruped jump beside DDPG from scratch; prints
 #            both scores, writes the learning curves and a skill video to demo_output/ (CPU)
 # make test: the test suite
 # make docs: the documentation site (Sphinx, warnings as errors) into docs/_build/html

@@ -4,13 +4,14 @@ import math
 import zipfile
 
 import pytest
+import torch as th
 
 import sb3_cic  # noqa: F401
 from sb3_cic import CIC, demo
 from sb3_cic.common.save_util import is_optimizer_state, read_saved_data
 
 
-@pytest.mark.parametrize("domain, steps, task", [("quadruped", 500_000, "stand"), ("walker", 100_000, "flip")])
+@pytest.mark.parametrize("domain, steps, task", [("quadruped", 500_000, "jump"), ("walker", 100_000, "flip")])
 def test_shipped_snapshots_are_hidden_256_cics_of_their_domain(domain, steps, task):
     path = demo.SNAPSHOTS[domain]
     data = read_saved_data(path)
@@ -35,9 +36,11 @@ def test_demo_fine_tunes_beside_ddpg_and_writes_the_curves(tmp_path, capsys):
     pretrained.learn(400)
     pretrained.save(snapshot)
     out = tmp_path / "out"
+    threads = th.get_num_threads()
     result = demo.main(["--domain", "walker", "--snapshot", str(snapshot) + ".zip", "--steps", "600",
                         "--learning-starts", "400", "--eval-every", "300", "--eval-episodes", "1", "--skills", "0",
-                        "--out", str(out), "--task", "stand"])
+                        "--out", str(out), "--task", "stand", "--num-threads", str(threads + 1)])
+    assert th.get_num_threads() == threads  # the demo's thread count does not outlive it
     for name in ("CIC", "DDPG"):
         assert [h[0] for h in result[name]] == [0, 300, 600]
         assert all(h[1] >= 0 and h[2] == pytest.approx(h[1] / sb3_cic.EXPERT_SCORES["walker_stand"]) for h in result[name])
@@ -49,9 +52,11 @@ def test_demo_fine_tunes_beside_ddpg_and_writes_the_curves(tmp_path, capsys):
     assert f"{last[1]:7.1f}" in printed and not math.isnan(last[2])
 
 
-def test_demo_refuses_a_budget_shorter_than_its_random_steps(tmp_path):
+@pytest.mark.parametrize("argv", [["--steps", "1000", "--learning-starts", "4000"], ["--num-threads", "0"]])
+def test_demo_refuses_a_budget_shorter_than_its_random_steps_or_no_thread(tmp_path, capsys, argv):
     with pytest.raises(SystemExit):
-        demo.main(["--steps", "1000", "--learning-starts", "4000", "--out", str(tmp_path)])
+        demo.main([*argv, "--out", str(tmp_path)])
+    assert "need --steps > --learning-starts" in capsys.readouterr().err
 
 
 def test_demo_on_quadruped_is_the_default(tmp_path, capsys):
@@ -64,8 +69,8 @@ def test_demo_on_quadruped_is_the_default(tmp_path, capsys):
                         "--learning-starts", "400", "--eval-every", "500", "--eval-episodes", "1", "--skills", "0",
                         "--out", str(tmp_path / "out")])
     assert [h[0] for h in result["CIC"]] == [0, 500]
-    assert result["CIC"][-1][2] == pytest.approx(result["CIC"][-1][1] / sb3_cic.EXPERT_SCORES["quadruped_stand"])
-    assert "URLB/quadruped-stand-v0" in capsys.readouterr().out
+    assert result["CIC"][-1][2] == pytest.approx(result["CIC"][-1][1] / sb3_cic.EXPERT_SCORES["quadruped_jump"])
+    assert "URLB/quadruped-jump-v0" in capsys.readouterr().out
 
 
 @pytest.mark.parametrize("argv", [["--task", "flip"], ["--domain", "walker", "--task", "jump"]])
