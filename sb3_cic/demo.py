@@ -96,8 +96,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser.add_argument("--eval-episodes", type=int, default=10, help="deterministic episodes per evaluation (URLB: 10)")
     parser.add_argument("--skills", type=int, default=9, help="skills in the video (0: no video)")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--num-threads", type=int, default=1,
-                        help="torch threads (the study's runs use 1; more only slow these small networks on a busy CPU)")
+    parser.add_argument("--num-threads", type=int, default=1, help="torch threads (the study's runs use 1)")
     parser.add_argument("--out", type=Path, default=Path("demo_output"), help="folder for the video, the plot and the models")
     args = parser.parse_args(argv)
     args.task = args.task or TASKS[args.domain][0]
