@@ -289,6 +289,12 @@ def plot_aggregates(aggregates: dict[str, dict[str, dict[str, float]]], path: Pa
     plt.close(fig)
 
 
+def line_style(index: int) -> tuple[str, str]:
+    """Colour and line style of the ``index``-th curve: matplotlib's ten colours, then the same colours dashed,
+    dotted and dash-dotted, so that up to 40 methods are told apart."""
+    return f"C{index % 10}", ("-", "--", ":", "-.")[(index // 10) % 4]
+
+
 def plot_learning_curves(results: list[dict[str, Any]], path: Path) -> None:
     """Evaluation return against fine-tuning steps, mean +- s.e. over seeds, one panel per task."""
     import matplotlib
@@ -311,8 +317,8 @@ def plot_learning_curves(results: list[dict[str, Any]], path: Path) -> None:
             values = np.stack(same)
             mean = values.mean(axis=0)
             se = values.std(axis=0, ddof=1) / np.sqrt(len(same)) if len(same) > 1 else np.zeros_like(mean)
-            color = f"C{labels.index(label) % 10}"
-            ax.plot(steps, mean, color=color, label=label)
+            color, linestyle = line_style(labels.index(label))
+            ax.plot(steps, mean, color=color, linestyle=linestyle, label=label)
             ax.fill_between(steps, mean - se, mean + se, color=color, alpha=0.25)
         ax.set_title(task)
         ax.set_xlabel("fine-tuning steps")

@@ -218,6 +218,12 @@ def test_bootstrap_intervals_are_reproducible():
     assert other["cic"]["IQM"]["low"] != first["cic"]["IQM"]["low"]  # the seed drives the resampling
 
 
+
+def test_learning_curves_tell_eleven_methods_apart():
+    # the quadruped study plots twelve labels: matplotlib's ten colours alone would repeat two of them
+    styles = [evaluation.line_style(i) for i in range(40)]
+    assert len(set(styles)) == 40 and styles[0] == ("C0", "-") and styles[10] == ("C0", "--")
+
 #: the command line of SETTINGS' fine-tuning settings (a run from scratch uses no pre-training setting)
 FINETUNE_FLAGS = [
     "--hidden-dim", "32", "--batch-size", "32", "--learning-starts", "500", "--buffer-size", "10000",
