@@ -30,13 +30,11 @@ from sb3_cic import zoo  # noqa: E402
 from sb3_cic.common.save_util import read_saved_data  # noqa: E402
 
 
-def episode_return(model, env_id: str, skill: np.ndarray, seed: int) -> float:
-    """Return of one deterministic episode of ``env_id`` (reset with ``seed``) with ``skill`` fixed."""
+def episode_return(model, env: gym.Env, skill: np.ndarray, seed: int) -> float:
+    """Return of one deterministic episode of ``env`` (reset with ``seed``) with ``skill`` fixed."""
     model.finetune_skill = np.asarray(skill, dtype=np.float32)
-    env = Monitor(gym.make(env_id))
     env.reset(seed=seed)
     returns, _ = evaluate_policy(model, env, n_eval_episodes=1, deterministic=True, return_episode_rewards=True)
-    env.close()
     return float(returns[0])
 
 
@@ -55,6 +53,7 @@ def main() -> None:
     if model.skill_prior is None:
         parser.error(f"{args.snapshot} is a {type(model).__name__}, which has no skill")
     rng = np.random.default_rng(args.seed)
+    envs_ = {task: Monitor(gym.make(task)) for task in args.tasks}
     print(f"# Task returns under fixed skills: {os.path.basename(args.snapshot)} ({type(model).__name__}, "
           f"{args.episodes} deterministic episodes per skill, one skill per episode)\n")
     print("| skill | " + " | ".join(args.tasks) + " |")
@@ -64,9 +63,11 @@ def main() -> None:
     for name, draw in rows:
         cells = []
         for task in args.tasks:
-            returns = [episode_return(model, task, draw(), args.seed + e) for e in range(args.episodes)]
+            returns = [episode_return(model, envs_[task], draw(), args.seed + e) for e in range(args.episodes)]
             cells.append(f"{np.mean(returns):.1f} ± {np.std(returns, ddof=1) / np.sqrt(len(returns)):.1f}")
         print(f"| {name} | " + " | ".join(cells) + " |", flush=True)
+    for env in envs_.values():
+        env.close()
 
 
 if __name__ == "__main__":
