@@ -53,7 +53,7 @@ def main() -> None:
     if model.skill_prior is None:
         parser.error(f"{args.snapshot} is a {type(model).__name__}, which has no skill")
     rng = np.random.default_rng(args.seed)
-    envs_ = {task: Monitor(gym.make(task)) for task in args.tasks}
+    task_envs = {task: Monitor(gym.make(task)) for task in args.tasks}
     print(f"# Task returns under fixed skills: {os.path.basename(args.snapshot)} ({type(model).__name__}, "
           f"{args.episodes} deterministic episodes per skill, one skill per episode)\n")
     print("| skill | " + " | ".join(args.tasks) + " |")
@@ -63,10 +63,10 @@ def main() -> None:
     for name, draw in rows:
         cells = []
         for task in args.tasks:
-            returns = [episode_return(model, envs_[task], draw(), args.seed + e) for e in range(args.episodes)]
+            returns = [episode_return(model, task_envs[task], draw(), args.seed + e) for e in range(args.episodes)]
             cells.append(f"{np.mean(returns):.1f} ± {np.std(returns, ddof=1) / np.sqrt(len(returns)):.1f}")
         print(f"| {name} | " + " | ".join(cells) + " |", flush=True)
-    for env in envs_.values():
+    for env in task_envs.values():
         env.close()
 
 
