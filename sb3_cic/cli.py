@@ -7,6 +7,8 @@
 * ``protocol``: the URLB protocol (:mod:`sb3_cic.protocol`);
 * ``study``, ``status``: the whole study on Ray and its state (:mod:`sb3_cic.study`);
 * ``report``: the score report of a study (:mod:`sb3_cic.evaluation`);
+* ``benchmark-report``: URLB's 12 tasks over several studies beside the CIC paper's Tables 5 and 6
+  (:mod:`sb3_cic.benchmark`);
 * ``skills``: a pre-trained policy under several skills, as one grid video and a plot (:mod:`sb3_cic.skill_video`).
 
 Options ``train`` and ``finetune`` add to rl-zoo's: ``--small`` (CPU-sized hyperparameters,
@@ -37,7 +39,7 @@ import yaml
 from sb3_cic import zoo
 from sb3_cic.common.fast_update import enable_tf32
 
-USAGE = """usage: sb3-cic {train,finetune,enjoy,record-video,protocol,study,status,report,skills} [options]
+USAGE = """usage: sb3-cic {train,finetune,enjoy,record-video,protocol,study,status,report,benchmark-report,skills} [options]
 
   train         rl-zoo training (pre-training on URLB/<domain>-v0, or ddpg on a task id)
   finetune      rl-zoo training on a task id from a pre-trained model (-i model.zip)
@@ -47,6 +49,7 @@ USAGE = """usage: sb3-cic {train,finetune,enjoy,record-video,protocol,study,stat
   study         the whole study (methods x domains x tasks x seeds) as Ray tasks, resumable
   status        runs done / running / failed / pending of a study
   report        per-task and rliable aggregate scores of a study
+  benchmark-report  the 12 tasks over several studies, beside the CIC paper's Tables 5 and 6
   skills        a snapshot's policy under n skills: one grid video and a plot (needs MUJOCO_GL=egl)
 
 Run `sb3-cic <command> --help` for the options (train/finetune/enjoy show rl-zoo's)."""
@@ -321,6 +324,10 @@ def _run(command: str, argv: list[str]) -> int:
         from sb3_cic.evaluation import main as report_main
 
         report_main(argv)
+    elif command == "benchmark-report":
+        from sb3_cic.benchmark import main as benchmark_main
+
+        benchmark_main(argv)
     elif command == "skills":
         from sb3_cic.skill_video import main as skills_main
 
