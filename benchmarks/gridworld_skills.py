@@ -32,7 +32,7 @@ Settings (small networks, chosen here; the appendix publishes none): hidden 64 f
 discriminator, batch 128, learning rate 1e-3 everywhere, one update per env step after 1,000 random steps,
 replay as large as the run, skills resampled at each episode (20 steps < the 50-step period), everything else
 URLB's (3-step returns, tau 0.01, exploration noise 0.2). Outputs, under ``--out``: ``<method>_seed<k>.json``
-per run, ``results.json`` (every run and the per-method means), ``gridworld_skills_seed<k>.png`` per seed
+per run (with its wall-clock and CPU seconds), ``results.json`` (every run and the per-method means), ``gridworld_skills_seed<k>.png`` per seed
 (Figure 7: per-skill visitation of the grid, one row per method) and a printed table.
 
     MUJOCO_GL=disable OMP_NUM_THREADS=1 python benchmarks/gridworld_skills.py --steps 30000 --seeds 0 1 2 \\
@@ -215,6 +215,9 @@ def plot_seed(runs: dict[str, np.ndarray], results: dict[str, dict[str, Any]], p
                 ax.plot(trajectories[k, :, 0], trajectories[k, :, 1], color="tab:orange", lw=1)
                 ax.plot(*trajectories[k, -1], marker="*", color="tab:red", ms=8)
                 ax.set_title(f"skill {k}", fontsize=8)
+                ax.plot(size // 2, size // 2, marker="s", mfc="none", color="black", ms=5)  # the start
+            elif k:
+                ax.axis("off")  # fewer skills than panels
             ax.set_xticks([])
             ax.set_yticks([])
         ends = np.zeros((size, size))
@@ -229,8 +232,7 @@ def plot_seed(runs: dict[str, np.ndarray], results: dict[str, dict[str, Any]], p
             f"acc {measures['disc_accuracy']:.2f} ({measures['disc_chance']:.2g})",
             fontsize=8,
         )
-        for ax in row:  # the start cell
-            ax.plot(size // 2, size // 2, marker="s", mfc="none", color="black", ms=5)
+        row[-1].plot(size // 2, size // 2, marker="s", mfc="none", color="black", ms=5)
     fig.suptitle(f"Gridworld skills (seed {seed}): deterministic episode of each skill from the start (square)", fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
@@ -242,7 +244,7 @@ def summary(rows: list[dict[str, Any]]) -> dict[str, dict[str, float]]:
 
     :param rows: one dict per run (``method`` and its measures)
     """
-    keys = ("cells_visited", "cells_final", "disc_accuracy", "mi_lower_bound_nats", "wall_s")
+    keys = ("cells_visited", "cells_final", "disc_accuracy", "mi_lower_bound_nats", "wall_s", "cpu_s")
     out: dict[str, dict[str, float]] = {}
     for method in dict.fromkeys(row["method"] for row in rows):
         values = {key: [row[key] for row in rows if row["method"] == method] for key in keys}
@@ -270,24 +272,24 @@ def main(argv: list[str] | None = None) -> None:
         trajectories: dict[str, np.ndarray] = {}
         results: dict[str, dict[str, Any]] = {}
         for name in args.methods:
-            start = time.perf_counter()
+            start, cpu_start = time.perf_counter(), time.process_time()
             model = make_model(name, args, seed)
             model.learn(args.steps)
-            wall = time.perf_counter() - start
+            wall, cpu = time.perf_counter() - start, time.process_time() - cpu_start
             results[name], trajectories[name] = evaluate(name, model, args, seed)
-            run = {"method": name, "seed": seed, "steps": args.steps, "wall_s": wall, **results[name],
+            run = {"method": name, "seed": seed, "steps": args.steps, "wall_s": wall, "cpu_s": cpu, **results[name],
                    "settings": {k: v for k, v in vars(args).items() if k not in ("seeds", "methods", "out")}}
             (out / f"{name}_seed{seed}.json").write_text(json.dumps(run, indent=1))
             rows.append(run)
-            print(f"{name} seed {seed}: {wall:.0f} s", flush=True)
+            print(f"{name} seed {seed}: {wall:.0f} s ({cpu:.0f} s of CPU)", flush=True)
         plot_seed(trajectories, results, out / f"gridworld_skills_seed{seed}.png", seed)
     (out / "results.json").write_text(json.dumps({"runs": rows, "summary": summary(rows)}, indent=1))
     print(f"\n| method | seed | skills | cells visited | cells at the end | disc. accuracy (chance) | I bound / max (nats) | "
-          f"cells in replay | wall s |\n|---|---|---|---|---|---|---|---|---|")
+          f"cells in replay | wall / CPU s |\n|---|---|---|---|---|---|---|---|---|")
     for row in rows:
         print(f"| {row['method']} | {row['seed']} | {row['n_skills']} | {row['cells_visited']} | {row['cells_final']} | "
               f"{row['disc_accuracy']:.3f} ({row['disc_chance']:.3g}) | {row['mi_lower_bound_nats']:.2f} / "
-              f"{row['mi_max_nats']:.2f} | {row['cells_in_replay']} | {row['wall_s']:.0f} |")
+              f"{row['mi_max_nats']:.2f} | {row['cells_in_replay']} | {row['wall_s']:.0f} / {row['cpu_s']:.0f} |")
     cic = [row for row in rows if row["method"] == "cic"]
     if cic:
         print("\nCIC with as many sampled skills as DIAYN has (cells visited / at the end):")

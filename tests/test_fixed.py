@@ -3,6 +3,7 @@ is not bootstrapped, a truncated one is (Gym's Hopper-v5 terminates, DMC's hoppe
 
 from __future__ import annotations
 
+import warnings
 from typing import Any
 
 import gymnasium as gym
@@ -109,7 +110,12 @@ def test_a_terminated_episode_is_not_bootstrapped_and_a_truncated_one_is(buffer_
     np.testing.assert_allclose(samples.rewards.flatten().numpy(), [1 + gamma + gamma**2, 1 + gamma, 1, 1 + gamma, 1], rtol=1e-6)
 
 
-def test_gym_hopper_pretrains_reward_free_and_still_terminates():
+def test_gym_hopper_pretrains_reward_free_and_still_terminates(tiny):
+    with warnings.catch_warnings():
+        warnings.filterwarnings("error", message=".*reward is ignored")  # RewardFree: nothing to ignore
+        Fixed("MlpPolicy", RewardFree(gym.make("Hopper-v5")), **tiny)
+    with pytest.warns(UserWarning, match="reward is ignored"):
+        Fixed("MlpPolicy", "Hopper-v5", **tiny)
     env = RewardFree(gym.make("Hopper-v5"))
     env.reset(seed=0)
     rewards, task_rewards, terminated = [], [], False

@@ -12,6 +12,7 @@ from stable_baselines3.common.type_aliases import GymEnv
 from stable_baselines3.common.vec_env import VecEnv, unwrap_vec_normalize
 
 from envs.dict_obs import FlatStateDict
+from envs.reward_free import RewardFree
 from envs.skill_wrapper import SkillObservationWrapper, VecSkillObservation
 from sb3_cic.skills import SkillPrior
 
@@ -46,10 +47,20 @@ def env_id_of(env: GymEnv | str | None) -> str | None:
 
 
 def is_reward_free_env(env: GymEnv | str | None) -> bool:
-    """Whether ``env`` is one of URLB's reward-free pre-training envs (``URLB/<domain>-v0``), whose reward is 0.
+    """Whether ``env`` is one of URLB's reward-free pre-training envs (``URLB/<domain>-v0``) or an env wrapped with
+    :class:`~envs.reward_free.RewardFree`, whose reward is 0.
 
     :param env: environment id, environment or VecEnv
     """
+    if isinstance(env, VecEnv):
+        if all(env.env_is_wrapped(RewardFree)):
+            return True
+    elif isinstance(env, gym.Env):
+        layer = env
+        while isinstance(layer, gym.Wrapper) and not isinstance(layer, RewardFree):
+            layer = layer.env
+        if isinstance(layer, RewardFree):
+            return True
     env_id = env_id_of(env)
     return env_id is not None and REWARD_FREE_ID.fullmatch(env_id) is not None
 
