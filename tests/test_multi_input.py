@@ -119,6 +119,11 @@ def test_save_load_and_finetune_through_a_shimmy_id(tiny, tmp_path):
     obs = np.random.default_rng(0).normal(size=(3, 15 + 4)).astype(np.float32)
     np.testing.assert_array_equal(model.predict(obs, deterministic=True)[0], loaded.predict(obs, deterministic=True)[0])
     loaded.learn(100, reset_num_timesteps=False)
+    env = loaded.wrap_env("dm_control/hopper-hop-v0")  # an eval env as the training env: flat, with the skill
+    assert env.observation_space == loaded.observation_space
+    raw_obs, _ = make_env("dm_control/hopper-hop-v0").reset(seed=0)
+    with pytest.raises(ValueError, match="wrap_env"):
+        loaded.predict(raw_obs)
 
     task = CIC.load_pretrained(tmp_path / "cic_hopper", env="dm_control/hopper-hop-v0", learning_starts=100)
     evaluation = URLBEvalCallback("dm_control/hopper-hop-v0", n_eval_episodes=1, eval_freq=10_000)

@@ -100,6 +100,11 @@ class SkillMixin:
         :param episode_start: the last masks (unused)
         :param deterministic: return deterministic actions
         """
+        if isinstance(observation, dict):
+            raise ValueError(
+                f"{type(self).__name__} acts on flat observations: model.wrap_env(env) flattens a Dict env as the "
+                "training env is (envs.FlatStateDict)"
+            )
         if isinstance(observation, np.ndarray) and observation.ndim > 0:
             size = observation.shape[-1]
             if self.skill_prior is not None and size == self.state_dim:
