@@ -244,8 +244,10 @@ def plot(results: list[dict[str, Any]], path: Path) -> None:
                 with warnings.catch_warnings():  # a bin without episodes in every seed: NaN, not a warning
                     warnings.simplefilter("ignore", RuntimeWarning)
                     mean, low, high = np.nanmean(curves, 0), np.nanmin(curves, 0), np.nanmax(curves, 0)
-                ax.plot(x, mean, color=color, label=f"{method} ({len(runs)} seeds)")
-                ax.fill_between(x, low, high, color=color, alpha=0.2)
+                ok = np.isfinite(mean)  # bins where no episode ended (short runs of 1,000-step episodes) are left out
+                ax.plot(x[ok], mean[ok], color=color, marker="." if ok.sum() < 5 else None,
+                        label=f"{method} ({len(runs)} seeds)")
+                ax.fill_between(x[ok], low[ok], high[ok], color=color, alpha=0.2)
                 ax.set_ylabel(label, fontsize=8)
         axes[0, col].set_title(ENVS[env][2], fontsize=10)
         axes[-1, col].set_xlabel("pre-training env steps")
