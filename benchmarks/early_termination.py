@@ -328,7 +328,8 @@ def main(argv: list[str] | None = None) -> None:
               f"{r['evals'][0]['mean']:.1f} / {r['evals'][-1]['mean']:.1f} | {r['times']['train_ms_per_step']:.1f} / "
               f"{r['times']['train_cpu_ms_per_step']:.1f} |")
     if args.project_steps:
-        print(f"\nprojected at {args.project_steps} steps per run (eval every {args.eval_freq}, {args.eval_episodes} episodes):")
+        print(f"\nprojected at {args.project_steps} steps per run (eval every {args.eval_freq}, "
+              f"{args.eval_episodes} episodes):")
         print("\n".join(project(results, args.project_steps, 3, args.eval_freq, args.eval_episodes)))
     print(f"\nwrote {out}/")
 

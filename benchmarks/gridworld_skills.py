@@ -32,7 +32,8 @@ Settings (small networks, chosen here; the appendix publishes none): hidden 64 f
 discriminator, batch 128, learning rate 1e-3 everywhere, one update per env step after 1,000 random steps,
 replay as large as the run, skills resampled at each episode (20 steps < the 50-step period), everything else
 URLB's (3-step returns, tau 0.01, exploration noise 0.2). Outputs, under ``--out``: ``<method>_seed<k>.json``
-per run (with its wall-clock and CPU seconds), ``results.json`` (every run and the per-method means), ``gridworld_skills_seed<k>.png`` per seed
+per run (with its wall-clock and CPU seconds), ``results.json`` (every run and the per-method means),
+``gridworld_skills_seed<k>.png`` per seed
 (Figure 7: per-skill visitation of the grid, one row per method) and a printed table.
 
     MUJOCO_GL=disable OMP_NUM_THREADS=1 python benchmarks/gridworld_skills.py --steps 30000 --seeds 0 1 2 \\
@@ -248,7 +249,8 @@ def summary(rows: list[dict[str, Any]]) -> dict[str, dict[str, float]]:
     out: dict[str, dict[str, float]] = {}
     for method in dict.fromkeys(row["method"] for row in rows):
         values = {key: [row[key] for row in rows if row["method"] == method] for key in keys}
-        out[method] = {f"{key}_{stat}": float(f(v)) for key, v in values.items() for stat, f in (("mean", np.mean), ("std", np.std))}
+        stats = (("mean", np.mean), ("std", np.std))
+        out[method] = {f"{key}_{stat}": float(f(v)) for key, v in values.items() for stat, f in stats}
     return out
 
 

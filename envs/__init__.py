@@ -88,7 +88,9 @@ def register_envs() -> None:
             )
     for env_id, entry_point in OTHER_ENVS.items():
         if env_id not in gym.registry:  # the env ends its episodes itself, as DMCEnv
-            gym.register(env_id, entry_point=entry_point, max_episode_steps=None, order_enforce=False, disable_env_checker=True)
+            gym.register(
+                env_id, entry_point=entry_point, max_episode_steps=None, order_enforce=False, disable_env_checker=True
+            )
 
 
 register_envs()

@@ -11,7 +11,9 @@ from stable_baselines3.common.env_checker import check_env as sb3_check_env
 import envs
 import sb3_cic  # noqa: F401  (registers the ids as well)
 
-DIMS = {"walker": (24, 6), "quadruped": (78, 12), "jaco": (55, 9), "point_mass": (4, 2), "hopper": (15, 4), "gridworld": (2, 2)}
+DIMS = {
+    "walker": (24, 6), "quadruped": (78, 12), "jaco": (55, 9), "point_mass": (4, 2), "hopper": (15, 4), "gridworld": (2, 2)
+}
 LENGTH = {"walker": 1000, "quadruped": 1000, "jaco": 250, "point_mass": 1000, "hopper": 1000, "gridworld": 20}
 
 
@@ -43,7 +45,8 @@ def test_env_checkers_and_dims(env_id):
 
 
 @pytest.mark.parametrize(
-    "env_id", ["URLB/walker-v0", "URLB/quadruped-run-v0", "URLB/jaco-reach_top_left-v0", "URLB/hopper-v0", "URLB/hopper-hop-v0"]
+    "env_id",
+    ["URLB/walker-v0", "URLB/quadruped-run-v0", "URLB/jaco-reach_top_left-v0", "URLB/hopper-v0", "URLB/hopper-hop-v0"],
 )
 def test_episode_ends_by_truncation(env_id):
     env = gym.make(env_id)

@@ -107,7 +107,8 @@ def test_a_terminated_episode_is_not_bootstrapped_and_a_truncated_one_is(buffer_
     assert dones == [0.0, 1.0, 1.0, 0.0, 0.0]  # the fall ends the return; the time limit bootstraps
     np.testing.assert_allclose(discounts, [gamma**3, gamma**2, gamma, gamma**2, gamma], rtol=1e-6)
     np.testing.assert_array_equal(samples.next_observations.numpy(), [[0, 3], [0, 4], [0, 4], [1, 4], [1, 4]])
-    np.testing.assert_allclose(samples.rewards.flatten().numpy(), [1 + gamma + gamma**2, 1 + gamma, 1, 1 + gamma, 1], rtol=1e-6)
+    expected = [1 + gamma + gamma**2, 1 + gamma, 1, 1 + gamma, 1]
+    np.testing.assert_allclose(samples.rewards.flatten().numpy(), expected, rtol=1e-6)
 
 
 def test_gym_hopper_pretrains_reward_free_and_still_terminates(tiny):
