@@ -1,10 +1,13 @@
 """URLB environments as Gymnasium ids, registered on import.
 
 * ``URLB/<domain>-<task>-v0``: the 12 URLB tasks (for example ``URLB/walker-flip-v0``,
-  ``URLB/jaco-reach_top_left-v0``) and ``URLB/point_mass-reach-v0``;
+  ``URLB/jaco-reach_top_left-v0``), ``URLB/point_mass-reach-v0`` and ``URLB/hopper-hop-v0`` (dm_control's
+  hopper hop: 1,000 steps, no early termination);
 * ``URLB/<domain>-v0``: the reward-free pre-training environment of a domain, on its primal task's
-  physics (walker stand, quadruped walk, jaco reach_top_left); the reward is 0 and the task reward is
-  reported in ``info["task_reward"]``.
+  physics (walker stand, quadruped walk, jaco reach_top_left, point_mass reach, hopper hop); the reward is 0
+  and the task reward is reported in ``info["task_reward"]``;
+* ``URLB/gridworld-v0``: the reward-free 10 x 10 gridworld of the CIC paper's Appendix G
+  (:class:`~envs.gridworld.GridWorldEnv`).
 
 On Linux without a display (no ``DISPLAY`` or ``WAYLAND_DISPLAY``) and with ``MUJOCO_GL`` unset, importing
 this package sets ``MUJOCO_GL`` to the headless backend that can load (``egl``, else ``osmesa``, else
@@ -33,12 +36,19 @@ if "MUJOCO_GL" not in os.environ and sys.platform.startswith("linux"):
 
 import gymnasium as gym  # noqa: E402
 
+from envs.dict_obs import FlatStateDict  # noqa: E402
 from envs.dmc import DMCEnv  # noqa: E402
+from envs.gridworld import GRID_EPISODE_LENGTH, GridWorldEnv  # noqa: E402
+from envs.reward_free import RewardFree  # noqa: E402
 from envs.skill_wrapper import SkillObservationWrapper, VecSkillObservation  # noqa: E402
 from envs.tasks import DOMAIN_TASKS, URLB_TASKS, loader  # noqa: E402
 
 #: episode length of each domain (time limit / control timestep)
-EPISODE_LENGTH = {"walker": 1000, "quadruped": 1000, "jaco": 250, "point_mass": 1000}
+EPISODE_LENGTH = {
+    "walker": 1000, "quadruped": 1000, "jaco": 250, "point_mass": 1000, "hopper": 1000, "gridworld": GRID_EPISODE_LENGTH
+}
+#: the ids of the envs that are not dm_control's, and their entry points
+OTHER_ENVS = {"URLB/gridworld-v0": "envs.gridworld:GridWorldEnv"}
 
 
 def make_dmc(domain: str, task: str, reward_free: bool = False, **kwargs) -> DMCEnv:
@@ -53,8 +63,8 @@ def make_dmc(domain: str, task: str, reward_free: bool = False, **kwargs) -> DMC
 
 
 def env_ids() -> list[str]:
-    """All registered URLB ids: pre-training ids first, then tasks."""
-    pretrain = [f"URLB/{domain}-v0" for domain in DOMAIN_TASKS]
+    """All registered URLB ids: pre-training ids first (the gridworld last of them), then tasks."""
+    pretrain = [f"URLB/{domain}-v0" for domain in DOMAIN_TASKS] + list(OTHER_ENVS)
     tasks = [f"URLB/{domain}-{task}-v0" for domain, tasks in DOMAIN_TASKS.items() for task in tasks]
     return pretrain + tasks
 
@@ -76,12 +86,20 @@ def register_envs() -> None:
                 order_enforce=False,
                 disable_env_checker=True,
             )
+    for env_id, entry_point in OTHER_ENVS.items():
+        if env_id not in gym.registry:  # the env ends its episodes itself, as DMCEnv
+            gym.register(
+                env_id, entry_point=entry_point, max_episode_steps=None, order_enforce=False, disable_env_checker=True
+            )
 
 
 register_envs()
 
 __all__ = [
     "DMCEnv",
+    "FlatStateDict",
+    "GridWorldEnv",
+    "RewardFree",
     "SkillObservationWrapper",
     "VecSkillObservation",
     "URLB_TASKS",

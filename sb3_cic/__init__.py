@@ -8,7 +8,9 @@ from sb3_cic.buffers import URLBReplayBuffer
 from sb3_cic.callbacks import FixedSkillCallback, SkillGridSweepCallback, SkillSelectionCallback, URLBEvalCallback
 from sb3_cic.constants import EXPERT_SCORES, normalized_score
 from sb3_cic.ddpg import URLBDDPG
-from sb3_cic.methods import APS, APT, CIC, DIAYN, ICM, MOSS, RND, SMM, APSRegressionCallback, Disagreement, ProtoRL
+from sb3_cic.methods import (
+    APS, APT, CIC, DIAYN, ICM, MOSS, RND, SMM, APSRegressionCallback, Disagreement, Fixed, ProtoRL,
+)
 from sb3_cic.skills import MixtureSkillPrior, OneHotSkillPrior, SkillPrior, SphereSkillPrior, UniformSkillPrior
 from sb3_cic.version import __version__
 
@@ -23,6 +25,7 @@ __all__ = [
     "SMM",
     "APS",
     "MOSS",
+    "Fixed",
     "APSRegressionCallback",
     "URLBDDPG",
     "URLBReplayBuffer",

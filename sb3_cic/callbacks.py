@@ -7,12 +7,13 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
+from gymnasium import spaces
 from stable_baselines3.common.callbacks import EvalCallback
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import DummyVecEnv
 
 from envs.skill_wrapper import SkillObservationWrapper
-from sb3_cic.common.env_util import prepare_env
+from sb3_cic.common.env_util import make_env, prepare_env
 from sb3_cic.common.resumable import ResumableCallback, env_state, set_env_state
 from sb3_cic.constants import normalized_score
 
@@ -193,14 +194,16 @@ class URLBEvalCallback(EvalCallback, ResumableCallback):
         eval_freq: int = 10_000,
         **kwargs: Any,
     ) -> None:
-        self._raw_eval_env = Monitor(gym.make(eval_env)) if isinstance(eval_env, str) else eval_env
+        self._raw_eval_env = Monitor(make_env(eval_env)) if isinstance(eval_env, str) else eval_env
         super().__init__(self._raw_eval_env, n_eval_episodes=n_eval_episodes, eval_freq=eval_freq, **kwargs)
         self.task = task
         self.history: list[tuple[int, float, float]] = []
 
     def _init_callback(self) -> None:
-        if self.model.skill_prior is not None and not self.eval_env.env_is_wrapped(SkillObservationWrapper)[0]:
-            env = prepare_env(self._raw_eval_env, self.model.skill_prior, self.model.skill_resample_every)
+        needs_skill = self.model.skill_prior is not None and not self.eval_env.env_is_wrapped(SkillObservationWrapper)[0]
+        if needs_skill or isinstance(self.eval_env.observation_space, spaces.Dict):
+            model = self.model
+            env = prepare_env(self._raw_eval_env, model.skill_prior, model.skill_resample_every, model.multi_input)
             self.eval_env = DummyVecEnv([lambda: env])
         super()._init_callback()
 

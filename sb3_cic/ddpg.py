@@ -59,7 +59,11 @@ class URLBDDPG(MethodMixin, SkillMixin, LeanRolloutMixin, DDPG):
     batch); at fine-tuning the target critic starts as a copy of the loaded critic (URLB leaves it at
     its random initialisation).
 
-    :param policy: the policy model (``"MlpPolicy"``; width through ``policy_kwargs={"hidden_dim": ...}``)
+    :param policy: the policy model (``"MlpPolicy"``; width through ``policy_kwargs={"hidden_dim": ...}``), or
+        ``"MultiInputPolicy"`` for a Dict observation of 1-D or scalar state Boxes (shimmy's ``dm_control/...`` ids):
+        the env is wrapped with :class:`~envs.dict_obs.FlatStateDict` (the entries concatenated in the Dict's key
+        order, alphabetical for shimmy's; actions in [-1, 1] rescaled to the env's bounds) and the policy is
+        ``"MlpPolicy"``'s on the flat state (``multi_input`` is saved with the model)
     :param env: environment id, environment or VecEnv
     :param learning_rate: Adam learning rate of actor and critic
     :param buffer_size: replay capacity
@@ -105,6 +109,8 @@ class URLBDDPG(MethodMixin, SkillMixin, LeanRolloutMixin, DDPG):
     freeze_critic_in_actor_step: bool = True
     #: the ``compile_update`` argument (a class default for models saved before it existed)
     compile_update: bool | dict[str, Any] = False
+    #: built with ``"MultiInputPolicy"``: Dict observations are flattened (a class default for older models)
+    multi_input: bool = False
 
     def __init__(
         self,
@@ -149,9 +155,11 @@ class URLBDDPG(MethodMixin, SkillMixin, LeanRolloutMixin, DDPG):
         self.env_id = env_id_of(env)
         self.algorithm = type(self).__name__
         self.package_version = package_version()
+        self.multi_input = policy == "MultiInputPolicy"
+        policy = "MlpPolicy" if self.multi_input else policy  # URLB's networks on the flattened Dict
         if _init_setup_model:  # ``load`` prepares the env itself, with the saved prior
             self._warn_if_reward_ignored(env, reward_free)
-            env = prepare_env(env, self.skill_prior, skill_resample_every)
+            env = prepare_env(env, self.skill_prior, skill_resample_every, self.multi_input)
         super().__init__(
             policy, env, learning_rate=learning_rate, buffer_size=buffer_size, learning_starts=learning_starts,
             batch_size=batch_size, tau=tau, gamma=gamma, train_freq=train_freq, gradient_steps=gradient_steps,

@@ -41,6 +41,10 @@ SMALL_HYPERPARAMS: dict[str, Any] = {
     "policy_kwargs": "dict(hidden_dim=32)",
 }
 
+#: algorithms that ``--methods all`` of a study leaves out (name them to run them): ``fixed``, the CIC paper's
+#: Appendix I baseline (a constant intrinsic reward), not one of URLB's methods
+BASELINES_BY_NAME_ONLY: tuple[str, ...] = ("fixed",)
+
 
 def algorithms() -> dict[str, type[URLBDDPG]]:
     """The algorithms of this package by rl-zoo name: ``ddpg``/``urlbddpg`` (:class:`URLBDDPG`) and

@@ -11,8 +11,10 @@ from stable_baselines3.common.env_checker import check_env as sb3_check_env
 import envs
 import sb3_cic  # noqa: F401  (registers the ids as well)
 
-DIMS = {"walker": (24, 6), "quadruped": (78, 12), "jaco": (55, 9), "point_mass": (4, 2)}
-LENGTH = {"walker": 1000, "quadruped": 1000, "jaco": 250, "point_mass": 1000}
+DIMS = {
+    "walker": (24, 6), "quadruped": (78, 12), "jaco": (55, 9), "point_mass": (4, 2), "hopper": (15, 4), "gridworld": (2, 2)
+}
+LENGTH = {"walker": 1000, "quadruped": 1000, "jaco": 250, "point_mass": 1000, "hopper": 1000, "gridworld": 20}
 
 
 def domain_of(env_id: str) -> str:
@@ -21,12 +23,13 @@ def domain_of(env_id: str) -> str:
 
 def test_all_ids_registered():
     ids = envs.env_ids()
-    assert len(ids) == 4 + 12 + 1
+    assert len(ids) == 5 + 1 + 12 + 1 + 1  # pre-training ids (and the gridworld), URLB's tasks, point mass, hopper
     for task in envs.URLB_TASKS:
         domain, name = task.split("_", 1) if not task.startswith("point") else ("point_mass", "reach")
         assert f"URLB/{domain}-{name}-v0" in gym.registry
-    for domain in ("walker", "quadruped", "jaco", "point_mass"):
+    for domain in ("walker", "quadruped", "jaco", "point_mass", "hopper", "gridworld"):
         assert f"URLB/{domain}-v0" in gym.registry
+    assert "URLB/hopper-hop-v0" in gym.registry
 
 
 @pytest.mark.parametrize("env_id", envs.env_ids())
@@ -41,7 +44,10 @@ def test_env_checkers_and_dims(env_id):
     env.close()
 
 
-@pytest.mark.parametrize("env_id", ["URLB/walker-v0", "URLB/quadruped-run-v0", "URLB/jaco-reach_top_left-v0"])
+@pytest.mark.parametrize(
+    "env_id",
+    ["URLB/walker-v0", "URLB/quadruped-run-v0", "URLB/jaco-reach_top_left-v0", "URLB/hopper-v0", "URLB/hopper-hop-v0"],
+)
 def test_episode_ends_by_truncation(env_id):
     env = gym.make(env_id)
     env.reset(seed=0)

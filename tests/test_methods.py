@@ -29,7 +29,7 @@ OVERRIDES: dict[tuple[str, str], str] = {}
 
 
 def test_every_method_declares_its_four_parts_in_its_own_file():
-    assert len(METHODS) == 10
+    assert len(METHODS) == 11  # URLB's nine, MOSS, Fixed
     for cls in METHODS:
         tree = ast.parse(inspect.getsource(cls))
         declared = {

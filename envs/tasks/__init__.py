@@ -11,12 +11,14 @@ import dm_env
 from dm_control import suite
 
 #: task names of each URLB domain; the first one is the primal task the reward-free
-#: pre-training environment runs on
+#: pre-training environment runs on. ``point_mass`` (a small test domain) and ``hopper`` (the CIC paper's
+#: Appendix I: DMC's fixed-length episodes against Gym's early termination) are not URLB's: no expert score
 DOMAIN_TASKS: dict[str, tuple[str, ...]] = {
     "walker": ("stand", "walk", "run", "flip"),
     "quadruped": ("walk", "run", "stand", "jump"),
     "jaco": ("reach_top_left", "reach_top_right", "reach_bottom_left", "reach_bottom_right"),
     "point_mass": ("reach",),
+    "hopper": ("hop",),
 }
 
 #: the 12 URLB downstream tasks
@@ -32,7 +34,7 @@ def _suite(domain: str, task: str) -> Callable[[int | None], dm_env.Environment]
 def loader(domain: str, task: str) -> Callable[[int | None], dm_env.Environment]:
     """Return ``load(seed) -> dm_env.Environment`` for a URLB task.
 
-    :param domain: ``walker``, ``quadruped``, ``jaco`` or ``point_mass``
+    :param domain: ``walker``, ``quadruped``, ``jaco``, ``point_mass`` or ``hopper``
     :param task: a task of that domain (see :data:`DOMAIN_TASKS`)
     """
     if domain not in DOMAIN_TASKS or task not in DOMAIN_TASKS[domain]:
@@ -53,4 +55,6 @@ def loader(domain: str, task: str) -> Callable[[int | None], dm_env.Environment]
         from envs.tasks import jaco
 
         return lambda seed: jaco.make(task, seed)
-    return _suite("point_mass", "easy")
+    if domain == "point_mass":
+        return _suite("point_mass", "easy")
+    return _suite(domain, task)

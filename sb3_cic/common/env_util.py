@@ -11,6 +11,8 @@ from gymnasium import spaces
 from stable_baselines3.common.type_aliases import GymEnv
 from stable_baselines3.common.vec_env import VecEnv, unwrap_vec_normalize
 
+from envs.dict_obs import FlatStateDict
+from envs.reward_free import RewardFree
 from envs.skill_wrapper import SkillObservationWrapper, VecSkillObservation
 from sb3_cic.skills import SkillPrior
 
@@ -45,17 +47,44 @@ def env_id_of(env: GymEnv | str | None) -> str | None:
 
 
 def is_reward_free_env(env: GymEnv | str | None) -> bool:
-    """Whether ``env`` is one of URLB's reward-free pre-training envs (``URLB/<domain>-v0``), whose reward is 0.
+    """Whether ``env`` is one of URLB's reward-free pre-training envs (``URLB/<domain>-v0``) or an env wrapped with
+    :class:`~envs.reward_free.RewardFree`, whose reward is 0.
 
     :param env: environment id, environment or VecEnv
     """
+    if isinstance(env, VecEnv):
+        if all(env.env_is_wrapped(RewardFree)):
+            return True
+    elif isinstance(env, gym.Env):
+        layer = env
+        while isinstance(layer, gym.Wrapper) and not isinstance(layer, RewardFree):
+            layer = layer.env
+        if isinstance(layer, RewardFree):
+            return True
     env_id = env_id_of(env)
     return env_id is not None and REWARD_FREE_ID.fullmatch(env_id) is not None
 
 
-def prepare_env(env: GymEnv | str, prior: SkillPrior | None, resample_every: int | None = 50) -> GymEnv:
+def make_env(env_id: str) -> gym.Env:
+    """``gym.make(env_id)``; a ``dm_control/...`` id first imports shimmy, which registers its ids on import
+    (gymnasium 1.x no longer loads them by itself).
+
+    :param env_id: a Gymnasium id
+    """
+    if env_id.startswith("dm_control/") and env_id not in gym.registry:
+        import shimmy  # noqa: F401
+
+    return gym.make(env_id)
+
+
+def prepare_env(
+    env: GymEnv | str, prior: SkillPrior | None, resample_every: int | None = 50, multi_input: bool = False
+) -> GymEnv:
     """Make ``env`` (an id, an env or a VecEnv) ready for a URLB agent.
 
+    A Dict observation of state vectors (shimmy's ``dm_control/...`` ids) needs ``multi_input`` (the model's
+    ``"MultiInputPolicy"``; without it a ``ValueError`` says so, as SB3's): the env is wrapped with
+    :class:`~envs.dict_obs.FlatStateDict` (entries in the Dict's key order, actions in [-1, 1]).
     Checks that actions are continuous and observations flat states, and adds the skill when the agent
     has a skill prior and the env does not carry it yet: an env is wrapped with
     :class:`~envs.SkillObservationWrapper`, a VecEnv of plain envs with :class:`~envs.VecSkillObservation`.
@@ -65,16 +94,29 @@ def prepare_env(env: GymEnv | str, prior: SkillPrior | None, resample_every: int
     :param env: environment id, environment or VecEnv
     :param prior: the agent's skill prior, or None
     :param resample_every: skill resampling period given to a new wrapper
+    :param multi_input: flatten a Dict observation of state vectors (an env already flat is left as it is)
     """
     if isinstance(env, str):
-        env = gym.make(env)
+        env = make_env(env)
+    if isinstance(env.observation_space, spaces.Dict):
+        if not multi_input:
+            raise ValueError(
+                "You must use `MultiInputPolicy` when working with dict observation space, not MlpPolicy: "
+                "MultiInputPolicy flattens a Dict of 1-D or scalar Boxes in its key order (envs.FlatStateDict)"
+            )
+        if isinstance(env, VecEnv):
+            raise ValueError(
+                "a VecEnv of Dict observations: wrap each env with envs.FlatStateDict first "
+                "(make_vec_env(..., wrapper_class=FlatStateDict))"
+            )
+        env = FlatStateDict(env)
     if not isinstance(env.action_space, spaces.Box):
         raise ValueError(f"URLB agents need a continuous (Box) action space, got {env.action_space}")
     obs_space = env.observation_space
     if not isinstance(obs_space, spaces.Box) or len(obs_space.shape) != 1:
         raise ValueError(
             f"URLB agents work on flat state observations (a 1-D Box), got {obs_space}; "
-            "image or Dict observations are not supported"
+            "image observations are not supported (a Dict of state vectors: MultiInputPolicy)"
         )
     if prior is None:
         return env

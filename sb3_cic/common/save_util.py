@@ -130,7 +130,7 @@ class SavedModel:
         """
         name = env_id_of(env) or type(env).__name__
         try:
-            env = prepare_env(env, self.prior, self.data.get("skill_resample_every", 50))
+            env = prepare_env(env, self.prior, self.data.get("skill_resample_every", 50), self.data.get("multi_input", False))
         except ValueError as error:
             if "skill_dim" not in str(error):
                 raise

@@ -24,6 +24,8 @@ class SkillMixin:
 
     skill_prior: SkillPrior | None
     skill_resample_every: int | None
+    #: Dict observations are flattened (the model was built with ``"MultiInputPolicy"``)
+    multi_input: bool
     #: the skill chosen for fine-tuning, once a skill-selection callback has chosen it
     finetune_skill: np.ndarray | None
     #: the skill last given to :meth:`set_skill` (appended to plain observations when there is no env)
@@ -98,6 +100,11 @@ class SkillMixin:
         :param episode_start: the last masks (unused)
         :param deterministic: return deterministic actions
         """
+        if isinstance(observation, dict):
+            raise ValueError(
+                f"{type(self).__name__} acts on flat observations: model.wrap_env(env) flattens a Dict env as the "
+                "training env is (envs.FlatStateDict)"
+            )
         if isinstance(observation, np.ndarray) and observation.ndim > 0:
             size = observation.shape[-1]
             if self.skill_prior is not None and size == self.state_dim:
@@ -122,7 +129,7 @@ class SkillMixin:
 
         :param env: environment id, environment or VecEnv
         """
-        env = prepare_env(env, self.skill_prior, self.skill_resample_every)
+        env = prepare_env(env, self.skill_prior, self.skill_resample_every, self.multi_input)
         if self.skill_prior is not None and self.finetune_skill is not None:
             if isinstance(env, VecEnv):
                 env.env_method("set_skill", self.finetune_skill, True)
@@ -138,4 +145,5 @@ class SkillMixin:
         :param env: environment id, environment or VecEnv
         :param force_reset: reset the env before the next ``learn``
         """
-        super().set_env(prepare_env(env, self.skill_prior, self.skill_resample_every), force_reset)  # type: ignore[misc]
+        env = prepare_env(env, self.skill_prior, self.skill_resample_every, self.multi_input)
+        super().set_env(env, force_reset)  # type: ignore[misc]

@@ -6,6 +6,7 @@ from sb3_cic.methods.aps import APS, APSCritic, APSPolicy, APSRegressionCallback
 from sb3_cic.methods.cic import CIC
 from sb3_cic.methods.diayn import DIAYN
 from sb3_cic.methods.disagreement import Disagreement
+from sb3_cic.methods.fixed import Fixed
 from sb3_cic.methods.icm import ICM
 from sb3_cic.methods.moss import MOSS
 from sb3_cic.methods.proto import ProtoRL
@@ -23,6 +24,7 @@ __all__ = [
     "SMM",
     "APS",
     "MOSS",
+    "Fixed",
     "APSPolicy",
     "APSCritic",
     "APSRegressionCallback",

@@ -33,10 +33,12 @@ STATES: tuple[str, ...] = ("done", "running", "failed", "pending")
 
 
 def all_methods() -> list[str]:
-    """``--methods all``: the ten unsupervised methods (URLB's nine and MOSS) and ``ddpg`` (one name per class)."""
+    """``--methods all``: the ten unsupervised methods (URLB's nine and MOSS) and ``ddpg`` (one name per class);
+    the baselines of :data:`~sb3_cic.zoo.BASELINES_BY_NAME_ONLY` (``fixed``) only by name."""
     names: dict[type, str] = {}
     for name, cls in zoo.algorithms().items():
-        names.setdefault(cls, name)
+        if name not in zoo.BASELINES_BY_NAME_ONLY:
+            names.setdefault(cls, name)
     return list(names.values())
 
 
