@@ -32,10 +32,9 @@ from pathlib import Path
 from typing import Any, Iterator, NoReturn, Sequence
 
 import gymnasium as gym
-import yaml
 
-from sb3_cic import zoo
-from sb3_cic.common.fast_update import enable_tf32
+from sb3_cic.common.arguments import argument_parser, option_type
+from sb3_cic.parsers import small_help
 
 USAGE = """usage: sb3-cic {train,finetune,enjoy,record-video,protocol,study,status,report,skills} [options]
 
@@ -49,7 +48,8 @@ USAGE = """usage: sb3-cic {train,finetune,enjoy,record-video,protocol,study,stat
   report        per-task and rliable aggregate scores of a study
   skills        a snapshot's policy under n skills: one grid video and a plot (needs MUJOCO_GL=egl)
 
-Run `sb3-cic <command> --help` for the options (train/finetune/enjoy show rl-zoo's)."""
+Run `sb3-cic <command> --help` for the options of a command (train, finetune, enjoy, record-video: also
+--zoo-help for rl-zoo's own)."""
 
 #: the errors that mean bad input: reported in one line with exit code 2 (other exceptions raise as they are)
 USER_ERRORS: tuple[type[BaseException], ...] = (ValueError, FileNotFoundError, gym.error.Error)
@@ -66,38 +66,81 @@ def _usage_error(parser: argparse.ArgumentParser, message: str) -> NoReturn:
 @contextlib.contextmanager
 def _one_line_usage_errors() -> Iterator[None]:
     """Within the block, argparse's errors (ours and rl-zoo's) raise :class:`UsageError` instead of printing
-    the usage and exiting: :func:`main` reports them in one line like the other user errors."""
-    saved = argparse.ArgumentParser.error
+    the usage and exiting: :func:`main` reports them in one line like the other user errors. rl-zoo's parsers,
+    like ours, take no abbreviated option (``--smal`` is not ``--small``)."""
+    saved_error, saved_parse = argparse.ArgumentParser.error, argparse.ArgumentParser.parse_known_args
+
+    def parse_known_args(self: argparse.ArgumentParser, *args: Any, **kwargs: Any) -> Any:
+        self.allow_abbrev = False
+        return saved_parse(self, *args, **kwargs)
+
     argparse.ArgumentParser.error = _usage_error  # type: ignore[method-assign,assignment]
+    argparse.ArgumentParser.parse_known_args = parse_known_args  # type: ignore[method-assign,assignment]
     try:
         yield
     finally:
-        argparse.ArgumentParser.error = saved  # type: ignore[method-assign]
+        argparse.ArgumentParser.error = saved_error  # type: ignore[method-assign]
+        argparse.ArgumentParser.parse_known_args = saved_parse  # type: ignore[method-assign]
+
+
+#: the numeric options of rl-zoo's ``train`` that ``train`` and ``finetune`` check before passing them on
+#: (``name in RANGES``: the options); rl-zoo's defaults hold when they are not given
+ZOO_OPTIONS: dict[str, tuple[str, ...]] = {
+    "n_timesteps": ("-n", "--n-timesteps"),
+    "seed": ("--seed",),
+    "num_threads": ("--num-threads",),
+    "n_eval_envs": ("--n-eval-envs",),
+    "save_freq": ("--save-freq",),
+    "log_interval": ("--log-interval",),
+    "verbose": ("--verbose",),
+}
+
+
+def zoo_parser(command: str) -> argparse.ArgumentParser:
+    """The options of ``sb3-cic train`` / ``finetune`` (``command``) that sb3-cic reads or checks; the others go to
+    rl-zoo's ``train`` as they are (``--zoo-help`` lists them).
+
+    :param command: ``"train"`` or ``"finetune"``
+    """
+    finetune = command == "finetune"
+    parser = argument_parser(
+        f"sb3-cic {command}",
+        "rl-zoo training on a task id from a pre-trained model (-i model.zip, loaded with load_pretrained)"
+        if finetune else "rl-zoo training: pre-training on URLB/<domain>-v0, or ddpg on a task id",
+        epilog="Other options are rl-zoo's train options, passed on as given: sb3-cic "
+        f"{command} --zoo-help lists them (it loads torch: a few seconds).",
+    )
+    parser.add_argument("--zoo-help", action="store_true", help="rl-zoo's train options")
+    parser.add_argument("--algo", default="cic", help="cic, icm, ..., or ddpg")
+    parser.add_argument("--env", required=True, help="env id: URLB/<domain>-v0 to pre-train, a task id to fine-tune")
+    if finetune:
+        parser.add_argument("-i", "--trained-agent", required=True, help="the pre-trained model (.zip)")
+    parser.add_argument("-conf", "--conf-file", default=None, help="rl-zoo yaml (default: zoo_configs/<algo>.yml)")
+    parser.add_argument("-params", "--hyperparams", nargs="+", default=[],
+                        help="rl-zoo's key:value overrides of the yaml (e.g. batch_size:256)")
+    parser.add_argument("--small", action="store_true", help=small_help())
+    parser.add_argument("--eval-freq", type=option_type("eval_freq"), default=None,
+                        help="steps between the yaml's URLBEvalCallback evaluations (default: the yaml's)")
+    parser.add_argument("--eval-episodes", type=option_type("eval_episodes"), default=None,
+                        help="episodes of each of those evaluations (default: the yaml's)")
+    parser.add_argument("-f", "--log-folder", default="logs", help="log folder")
+    parser.add_argument("--compile", action="store_true", help="compile_update=True: the update compiled as one graph")
+    parser.add_argument("--tf32", action="store_true", help="TF32 matrix products on CUDA")
+    for name, flags in ZOO_OPTIONS.items():
+        parser.add_argument(*flags, dest=name, type=option_type(name), default=None,
+                            help=f"rl-zoo's {flags[-1]}, checked here (default: rl-zoo's)")
+    return parser
 
 
 def _zoo_args(argv: Sequence[str], finetune: bool) -> tuple[list[str], str, str, str]:
-    """Turn our train/finetune arguments into rl-zoo train arguments."""
-    parser = argparse.ArgumentParser(add_help=False)
-    parser.add_argument("--algo", default="cic")
-    parser.add_argument("--env", default=None)
-    parser.add_argument("-conf", "--conf-file", default=None)
-    parser.add_argument("-params", "--hyperparams", nargs="+", default=[])
-    parser.add_argument("--small", action="store_true")
-    parser.add_argument("--eval-freq", type=int, default=None)
-    parser.add_argument("--eval-episodes", type=int, default=None)
-    parser.add_argument("-f", "--log-folder", default="logs")
-    parser.add_argument("--compile", action="store_true")
-    parser.add_argument("--tf32", action="store_true")
-    known, rest = parser.parse_known_args(list(argv))
-    if known.env is None or "-h" in rest or "--help" in rest:
-        print(
-            "sb3-cic options: --small (CPU-sized hyperparameters), --eval-freq N and --eval-episodes N (the yaml's "
-            "URLBEvalCallback), --conf-file (default zoo_configs/<algo>.yml), -f/--log-folder (default logs), "
-            "--compile (compile_update=True: the update compiled as one graph), --tf32 (TF32 matrix products on CUDA)"
-            + (", -i <pre-trained model.zip> (required)" if finetune else "")
-            + ". rl-zoo's train options follow.\n"
-        )
-        return ["--help"], known.algo, "", known.log_folder
+    """Turn our train/finetune arguments into rl-zoo train arguments (``["--help"]`` for ``--zoo-help``)."""
+    from sb3_cic import zoo
+    from sb3_cic.common.fast_update import enable_tf32
+
+    argv = list(argv)
+    if "--zoo-help" in argv:
+        return ["--help"], "", "", ""
+    known, rest = zoo_parser("finetune" if finetune else "train").parse_known_args(argv)
     algo = known.algo.lower()
     cls = zoo.get_algo(algo)
     config = known.conf_file or str(zoo.default_config(algo))
@@ -107,9 +150,9 @@ def _zoo_args(argv: Sequence[str], finetune: bool) -> tuple[list[str], str, str,
             f"{known.env} is a task: pre-train {algo} on the domain's reward-free id (URLB/<domain>-v0), "
             "then fine-tune with `sb3-cic finetune -i <model.zip>`"
         )
-    if finetune and not any(arg in rest for arg in ("-i", "--trained-agent")):
-        raise ValueError("sb3-cic finetune needs the pre-trained model: -i <model.zip>")
-    for key in ("-i", "--trained-agent"):
+    if finetune:
+        rest = ["-i", known.trained_agent, *rest]
+    for key in ("-i", "--trained-agent"):  # train -i: rl-zoo continues training a saved model
         if key in rest:
             model = rest[rest.index(key) + 1] if rest.index(key) + 1 < len(rest) else ""
             if not model.endswith(".zip") or not os.path.isfile(model):
@@ -121,6 +164,9 @@ def _zoo_args(argv: Sequence[str], finetune: bool) -> tuple[list[str], str, str,
         enable_tf32()
     overrides = zoo.zoo_overrides(config, known.env, overrides, known.eval_freq, known.eval_episodes)
     args = ["--algo", algo, "--env", known.env, "--conf-file", config, "-f", known.log_folder, "--eval-freq", "-1", *rest]
+    for name, flags in ZOO_OPTIONS.items():
+        if getattr(known, name) is not None:
+            args += [flags[-1], str(getattr(known, name))]
     if overrides:
         args += ["--hyperparams", *zoo.format_hyperparams(overrides)]
     return args, algo, known.env, known.log_folder
@@ -197,6 +243,8 @@ def _run_zoo_train(args: list[str], algo: str | None = None, log_folder: str | N
 
 def train(argv: Sequence[str]) -> None:
     """``sb3-cic train``: rl_zoo3's train with the sb3-cic algorithms and configs."""
+    from sb3_cic import zoo
+
     zoo.register_algos()
     args, algo, _, log_folder = _zoo_args(argv, finetune=False)
     _run_zoo_train(args, algo, log_folder)
@@ -215,6 +263,8 @@ def finetune(argv: Sequence[str]) -> Path | None:
 
     from huggingface_sb3 import EnvironmentName
     from rl_zoo3.utils import get_latest_run_id
+
+    from sb3_cic import zoo
     from sb3_cic.common.save_util import read_saved_data
 
     algos = zoo.register_algos()
@@ -248,6 +298,8 @@ def finetune(argv: Sequence[str]) -> Path | None:
 
 def _record_skill(config_file: Path, skill: list[float]) -> None:
     """Add ``skill`` to the :func:`sb3_cic.zoo.skill_wrapper` entry of a saved rl-zoo ``config.yml``."""
+    import yaml
+
     with open(config_file) as file:
         config = yaml.load(file, Loader=yaml.UnsafeLoader)
     wrappers = config.get("env_wrapper")
@@ -279,6 +331,8 @@ def enjoy(argv: Sequence[str]) -> None:
     """``sb3-cic enjoy``: rl_zoo3's enjoy with the sb3-cic algorithms (default folder ``logs``)."""
     from rl_zoo3.enjoy import enjoy as zoo_enjoy
 
+    from sb3_cic import zoo
+
     zoo.register_algos()
     saved, sys.argv = sys.argv, ["rl_zoo3 enjoy", *_with_default_folder(argv)]
     try:
@@ -290,6 +344,8 @@ def enjoy(argv: Sequence[str]) -> None:
 
 def record_video(argv: Sequence[str]) -> None:
     """``sb3-cic record-video``: rl_zoo3's record_video script with the sb3-cic algorithms."""
+    from sb3_cic import zoo
+
     zoo.register_algos()
     saved, sys.argv = sys.argv, ["rl_zoo3 record_video", *_with_default_folder(argv)]
     try:
