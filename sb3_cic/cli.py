@@ -83,17 +83,69 @@ def _one_line_usage_errors() -> Iterator[None]:
         argparse.ArgumentParser.parse_known_args = saved_parse  # type: ignore[method-assign]
 
 
-#: the numeric options of rl-zoo's ``train`` that ``train`` and ``finetune`` check before passing them on
-#: (``name in RANGES``: the options); rl-zoo's defaults hold when they are not given
-ZOO_OPTIONS: dict[str, tuple[str, ...]] = {
-    "n_timesteps": ("-n", "--n-timesteps"),
-    "seed": ("--seed",),
-    "num_threads": ("--num-threads",),
-    "n_eval_envs": ("--n-eval-envs",),
-    "save_freq": ("--save-freq",),
-    "log_interval": ("--log-interval",),
-    "verbose": ("--verbose",),
+#: rl-zoo's numeric options (their flags by name in :data:`~sb3_cic.common.arguments.RANGES`) that sb3-cic checks
+#: before passing them on; rl-zoo's defaults hold when they are not given
+ZOO_OPTIONS: dict[str, tuple[tuple[str, ...], str]] = {
+    "n_timesteps": (("-n", "--n-timesteps"), "steps (default: the yaml's n_timesteps; enjoy, record-video: 1000)"),
+    "seed": (("--seed",), "random seed (default: a random one; enjoy, record-video: 0)"),
+    "num_threads": (("--num-threads",), "torch threads (default: torch's)"),
+    "n_envs": (("--n-envs",), "envs (default: 1)"),
+    "n_eval_envs": (("--n-eval-envs",), "rl-zoo's evaluation envs (default: 1)"),
+    "save_freq": (("--save-freq",), "steps between saved checkpoints of the model (default: none)"),
+    "log_interval": (("--log-interval",), "episodes between log outputs (default: the algorithm's)"),
+    "exp_id": (("--exp-id",), "experiment id (default: 0, the latest; -1: no experiment folder)"),
+    "verbose": (("--verbose",), "verbosity (default: 1)"),
 }
+#: the :data:`ZOO_OPTIONS` of each command that passes its options to rl-zoo
+ZOO_COMMAND_OPTIONS: dict[str, tuple[str, ...]] = {
+    "train": ("n_timesteps", "seed", "num_threads", "n_eval_envs", "save_freq", "log_interval", "verbose"),
+    "finetune": ("n_timesteps", "seed", "num_threads", "n_eval_envs", "save_freq", "log_interval", "verbose"),
+    "enjoy": ("n_timesteps", "seed", "num_threads", "n_envs", "exp_id", "verbose"),
+    "record-video": ("n_timesteps", "seed", "n_envs", "exp_id"),
+}
+
+
+def _add_zoo_options(parser: argparse.ArgumentParser, command: str) -> None:
+    """The checked rl-zoo options of ``command`` (:data:`ZOO_COMMAND_OPTIONS`), default None (rl-zoo's)."""
+    for name in ZOO_COMMAND_OPTIONS[command]:
+        flags, text = ZOO_OPTIONS[name]
+        parser.add_argument(*flags, dest=name, type=option_type(name), default=None, help=text)
+
+
+def _zoo_options(known: argparse.Namespace, command: str) -> list[str]:
+    """The checked rl-zoo options given (:func:`_add_zoo_options`), as rl-zoo arguments."""
+    args: list[str] = []
+    for name in ZOO_COMMAND_OPTIONS[command]:
+        if getattr(known, name) is not None:
+            args += [ZOO_OPTIONS[name][0][-1], str(getattr(known, name))]
+    return args
+
+
+def passthrough_parser(command: str) -> argparse.ArgumentParser:
+    """The options of ``sb3-cic enjoy`` / ``record-video`` that sb3-cic reads or checks; the others go to rl-zoo's
+    script as they are (``--zoo-help`` lists them).
+
+    :param command: ``"enjoy"`` or ``"record-video"``
+    """
+    parser = argument_parser(
+        f"sb3-cic {command}",
+        f"rl-zoo's {command.replace('-', '_')} with the sb3-cic algorithms"
+        + (" (needs MUJOCO_GL=egl or glfw)" if command == "record-video" else ""),
+        epilog=f"Other options are rl-zoo's {command.replace('-', '_')} options, passed on as given: sb3-cic {command} "
+        "--zoo-help lists them (it loads torch: a few seconds).",
+    )
+    parser.add_argument("--zoo-help", action="store_true", help=f"rl-zoo's {command.replace('-', '_')} options")
+    parser.add_argument("-f", "--folder", default="logs", help="log folder")
+    _add_zoo_options(parser, command)
+    return parser
+
+
+def _passthrough_args(argv: Sequence[str], command: str) -> list[str]:
+    """The rl-zoo arguments of ``sb3-cic enjoy`` / ``record-video`` (``["--help"]`` for ``--zoo-help``)."""
+    if "--zoo-help" in argv:
+        return ["--help"]
+    known, rest = passthrough_parser(command).parse_known_args(list(argv))
+    return ["-f", known.folder, *_zoo_options(known, command), *rest]
 
 
 def zoo_parser(command: str) -> argparse.ArgumentParser:
@@ -126,21 +178,20 @@ def zoo_parser(command: str) -> argparse.ArgumentParser:
     parser.add_argument("-f", "--log-folder", default="logs", help="log folder")
     parser.add_argument("--compile", action="store_true", help="compile_update=True: the update compiled as one graph")
     parser.add_argument("--tf32", action="store_true", help="TF32 matrix products on CUDA")
-    for name, flags in ZOO_OPTIONS.items():
-        parser.add_argument(*flags, dest=name, type=option_type(name), default=None,
-                            help=f"rl-zoo's {flags[-1]}, checked here (default: rl-zoo's)")
+    _add_zoo_options(parser, command)
     return parser
 
 
 def _zoo_args(argv: Sequence[str], finetune: bool) -> tuple[list[str], str, str, str]:
     """Turn our train/finetune arguments into rl-zoo train arguments (``["--help"]`` for ``--zoo-help``)."""
-    from sb3_cic import zoo
-    from sb3_cic.common.fast_update import enable_tf32
-
     argv = list(argv)
     if "--zoo-help" in argv:
         return ["--help"], "", "", ""
     known, rest = zoo_parser("finetune" if finetune else "train").parse_known_args(argv)
+    from sb3_cic import zoo
+    from sb3_cic.common.fast_update import enable_tf32
+    from sb3_cic.common.save_util import check_saved_model
+
     algo = known.algo.lower()
     cls = zoo.get_algo(algo)
     config = known.conf_file or str(zoo.default_config(algo))
@@ -157,6 +208,7 @@ def _zoo_args(argv: Sequence[str], finetune: bool) -> tuple[list[str], str, str,
             model = rest[rest.index(key) + 1] if rest.index(key) + 1 < len(rest) else ""
             if not model.endswith(".zip") or not os.path.isfile(model):
                 raise ValueError(f"{key} {model}: no saved model (.zip) there")
+            check_saved_model(model).check_class(cls)  # before rl-zoo makes its run folder
     overrides = {**(zoo.SMALL_HYPERPARAMS if known.small else {}), **zoo.parse_hyperparams(known.hyperparams)}
     if known.compile:
         overrides["compile_update"] = True
@@ -164,9 +216,7 @@ def _zoo_args(argv: Sequence[str], finetune: bool) -> tuple[list[str], str, str,
         enable_tf32()
     overrides = zoo.zoo_overrides(config, known.env, overrides, known.eval_freq, known.eval_episodes)
     args = ["--algo", algo, "--env", known.env, "--conf-file", config, "-f", known.log_folder, "--eval-freq", "-1", *rest]
-    for name, flags in ZOO_OPTIONS.items():
-        if getattr(known, name) is not None:
-            args += [flags[-1], str(getattr(known, name))]
+    args += _zoo_options(known, "finetune" if finetune else "train")
     if overrides:
         args += ["--hyperparams", *zoo.format_hyperparams(overrides)]
     return args, algo, known.env, known.log_folder
@@ -243,10 +293,10 @@ def _run_zoo_train(args: list[str], algo: str | None = None, log_folder: str | N
 
 def train(argv: Sequence[str]) -> None:
     """``sb3-cic train``: rl_zoo3's train with the sb3-cic algorithms and configs."""
+    args, algo, _, log_folder = _zoo_args(argv, finetune=False)
     from sb3_cic import zoo
 
     zoo.register_algos()
-    args, algo, _, log_folder = _zoo_args(argv, finetune=False)
     _run_zoo_train(args, algo, log_folder)
 
 
@@ -258,6 +308,7 @@ def finetune(argv: Sequence[str]) -> Path | None:
     skill is written into the run's ``config.yml`` (``env_wrapper`` ``skill``) so that ``enjoy`` and
     ``record-video`` use it. Returns the run folder.
     """
+    args, algo, env_id, log_folder = _zoo_args(argv, finetune=True)
     import shutil
     import tempfile
 
@@ -268,7 +319,6 @@ def finetune(argv: Sequence[str]) -> Path | None:
     from sb3_cic.common.save_util import read_saved_data
 
     algos = zoo.register_algos()
-    args, algo, env_id, log_folder = _zoo_args(argv, finetune=True)
     if args == ["--help"]:
         _run_zoo_train(args)
         return None
@@ -311,13 +361,6 @@ def _record_skill(config_file: Path, skill: list[float]) -> None:
         yaml.dump(config, file)
 
 
-def _with_default_folder(argv: Sequence[str]) -> list[str]:
-    argv = list(argv)
-    if not any(arg in argv for arg in ("-f", "--folder")):
-        argv = ["-f", "logs", *argv]
-    return argv
-
-
 @contextlib.contextmanager
 def _assertions_as_user_errors() -> Iterator[None]:
     """rl-zoo's ``enjoy`` and ``record_video`` check their input with ``assert`` (a missing folder...): a ``ValueError``."""
@@ -329,12 +372,13 @@ def _assertions_as_user_errors() -> Iterator[None]:
 
 def enjoy(argv: Sequence[str]) -> None:
     """``sb3-cic enjoy``: rl_zoo3's enjoy with the sb3-cic algorithms (default folder ``logs``)."""
+    args = _passthrough_args(argv, "enjoy")
     from rl_zoo3.enjoy import enjoy as zoo_enjoy
 
     from sb3_cic import zoo
 
     zoo.register_algos()
-    saved, sys.argv = sys.argv, ["rl_zoo3 enjoy", *_with_default_folder(argv)]
+    saved, sys.argv = sys.argv, ["rl_zoo3 enjoy", *args]
     try:
         with _assertions_as_user_errors():
             zoo_enjoy()
@@ -344,10 +388,11 @@ def enjoy(argv: Sequence[str]) -> None:
 
 def record_video(argv: Sequence[str]) -> None:
     """``sb3-cic record-video``: rl_zoo3's record_video script with the sb3-cic algorithms."""
+    args = _passthrough_args(argv, "record-video")
     from sb3_cic import zoo
 
     zoo.register_algos()
-    saved, sys.argv = sys.argv, ["rl_zoo3 record_video", *_with_default_folder(argv)]
+    saved, sys.argv = sys.argv, ["rl_zoo3 record_video", *args]
     try:
         with _assertions_as_user_errors():
             runpy.run_module("rl_zoo3.record_video", run_name="__main__")
@@ -366,6 +411,9 @@ def _run(command: str, argv: list[str]) -> int:
     elif command in ("record-video", "record_video"):
         record_video(argv)
     elif command == "protocol":
+        from sb3_cic.parsers import build_parser
+
+        build_parser().parse_args(argv)  # --help and refused options before the protocol's code (torch) loads
         from sb3_cic.protocol import main as protocol_main
 
         protocol_main(argv)

@@ -115,6 +115,9 @@ RANGES: dict[str, Range] = {
     "exploration_clip": NON_NEGATIVE,
     "stats_window_size": POSITIVE_INT,
     "skill_dim": Range(1, MAX_SKILL_DIM, integer=True),
+    "sf_dim": Range(1, MAX_SKILL_DIM, integer=True),  # APS's skill_dim
+    "regression_step": NON_NEGATIVE_INT,  # APS's fine-tuning
+    "regression_max_samples": POSITIVE_INT,
     "skill_resample_every": POSITIVE_INT,
     "verbose": Range(0, 2, integer=True),
     "seed": SEED,
@@ -166,6 +169,8 @@ RANGES: dict[str, Range] = {
     "reps": POSITIVE_INT,
     "n_timesteps": POSITIVE_INT,
     "n_eval_envs": POSITIVE_INT,
+    "n_envs": POSITIVE_INT,
+    "exp_id": Range(-1, integer=True),
     "save_freq": POSITIVE_INT,
     "log_interval": POSITIVE_INT,
     "n_skills": POSITIVE_INT,
@@ -223,14 +228,14 @@ def check_argument(name: str, value: Any, key: str | None = None) -> Any:
     return value
 
 
-def check_ranges(args: dict[str, Any], names: Iterable[str] = DDPG_ARGUMENTS) -> None:
+def check_ranges(args: dict[str, Any], names: Iterable[str] | None = None) -> None:
     """Check the arguments ``names`` found in ``args`` (a constructor's ``locals()``, or a subset); None is the
     default of an optional argument and is not checked.
 
     :param args: argument values by name
-    :param names: the names to check (default: :data:`DDPG_ARGUMENTS`)
+    :param names: the names to check (default: those of ``args`` that :data:`RANGES` or :data:`FLAGS` know)
     """
-    for name in names:
+    for name in names if names is not None else [name for name in args if name in RANGES or name in FLAGS]:
         value = args.get(name)
         if value is None:
             continue
@@ -278,7 +283,7 @@ def check_ddpg_arguments(args: dict[str, Any]) -> None:
             f"observations, intrinsic-reward relabelling), got {buffer_class!r}; HerReplayBuffer needs goal-conditioned "
             "Dict observations, which URLB agents do not take"
         )
-    check_ranges(args)
+    check_ranges(args, DDPG_ARGUMENTS)
 
 
 # the command line ---------------------------------------------------------------------------------
@@ -303,7 +308,8 @@ class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
 
     def _get_help_string(self, action: argparse.Action) -> str:
         text = action.help or ""
-        if "default" in text or action.default in (None, False, argparse.SUPPRESS) or not action.option_strings:
+        nothing = action.default is None or action.default is False or action.default is argparse.SUPPRESS
+        if "default" in text or nothing or action.default == [] or not action.option_strings:
             return text
         return super()._get_help_string(action) or text
 
