@@ -301,6 +301,26 @@ def _check_learning_starts(settings: Settings, hyperparams: dict[str, Any], step
         )
 
 
+def check_learning_starts(runs: Sequence[Any], settings: Settings) -> None:
+    """``ValueError`` before anything is written when the ``learning_starts`` of ``settings`` leaves one of ``runs``
+    (:class:`~sb3_cic.study.graph.Run`, the study's) no update; nothing to check when it is the yaml's.
+
+    :param runs: the command's runs
+    :param settings: the command's settings
+    """
+    if settings.learning_starts is None:
+        return
+    for method, domain, task in sorted({(run.method, run.domain, run.task) for run in runs}, key=str):
+        from_scratch = not zoo.has_reward_module(zoo.get_algo(method))
+        if task is None:
+            env_id, steps, phase = f"URLB/{domain}-v0", settings.pretrain_steps, "pre-training"
+        else:
+            env_id, steps, phase = task_env_id(domain, task), settings.finetune_steps, "fine-tuning"
+        overrides = settings.overrides(finetune=task is not None and not from_scratch)
+        hyperparams, _, n_timesteps, _ = zoo.zoo_hyperparams(method, env_id, None, overrides)
+        _check_learning_starts(settings, hyperparams, int(steps or n_timesteps), phase)
+
+
 def _describe(hyperparams: dict[str, Any]) -> dict[str, str]:
     return {key: str(value) for key, value in sorted(hyperparams.items())}
 

@@ -185,6 +185,7 @@ def run_study(
         raise ValueError(f"fine-tuning from the snapshot at {from_snapshot} steps needs it among the intermediate "
                          f"snapshots (--snapshots {' '.join(map(str, settings.snapshots))}); the final one is the default")
     runs = build_graph(methods, domains, tasks, seeds, pretrain_seed, from_snapshot)
+    protocol.check_learning_starts(runs, settings)
     check_study_settings(study, settings, pretrain_seed, **settings_use(runs))
     todo = check_study(study, runs, pretrain_seed)
     record_study_settings(study, settings, pretrain_seed, **settings_use(runs))
