@@ -21,7 +21,7 @@ from sb3_cic.common.env_util import check_finite_step, env_id_of, prepare_env
 from sb3_cic.common.fast_update import UpdateMetrics, compiled_step
 from sb3_cic.common.method import MethodMixin
 from sb3_cic.common.rollout import LeanRolloutMixin
-from sb3_cic.common.save_util import UNREADABLE_TENSORS, SavedModel, check_tensors, is_optimizer_state, package_version
+from sb3_cic.common.save_util import SavedModel, check_tensors, is_optimizer_state, package_version, quiet_tensor_reads
 from sb3_cic.common.save_util import read_saved_data
 from sb3_cic.common.skill_mixin import SkillMixin
 from sb3_cic.finetune import start_finetuning, with_finetune_callback
@@ -377,16 +377,17 @@ class URLBDDPG(MethodMixin, SkillMixin, LeanRolloutMixin, DDPG):
         saved = SavedModel(read_saved_data(path, custom_objects), source=path)
         env = saved.check(cls, env)
         try:
-            model = super().load(
-                path, env=env, device=device, custom_objects=custom_objects,
-                print_system_info=print_system_info, force_reset=force_reset, **kwargs,
-            )
-        except UNREADABLE_TENSORS:  # a damaged tensor entry: named, without torch's advice to unpickle it
-            check_tensors(path)
-            raise
+            with quiet_tensor_reads():
+                model = super().load(
+                    path, env=env, device=device, custom_objects=custom_objects,
+                    print_system_info=print_system_info, force_reset=force_reset, **kwargs,
+                )
         except RuntimeError as error:  # the networks' state dicts do not fit this class's (or a damaged entry)
             check_tensors(path)
             raise ValueError(f"{saved.describe()} does not fit {cls.__name__}: {error}{saved.version_note()}") from error
+        except Exception:  # a damaged tensor entry: named, without torch's advice to unpickle it
+            check_tensors(path)
+            raise
         model.package_version = package_version()  # what will save it next
         return model  # type: ignore[return-value]
 

@@ -32,10 +32,10 @@ def load_snapshot(path: str | Path, device: str = "cpu") -> URLBDDPG:
     :param path: saved model (``.zip``)
     :param device: torch device
     """
-    from sb3_cic.common.save_util import read_saved_data
+    from sb3_cic.common.save_util import check_saved_model
     from sb3_cic.zoo import get_algo
 
-    cls = get_algo(read_saved_data(path).get("algorithm") or "ddpg")
+    cls = get_algo(check_saved_model(path).algorithm or "ddpg")  # a damaged file: a ValueError naming it
     return cls.load(path, device=device)
 
 

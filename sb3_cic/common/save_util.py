@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import contextlib
 import os
-import pickle
 import shutil
 import tempfile
+import warnings
 import zipfile
 import zlib
 from pathlib import Path
@@ -24,8 +24,15 @@ from sb3_cic.version import __version__
 
 #: what reading a damaged zip file raises (a truncated download, a file cut short by a full disk...)
 DAMAGED_ZIP: tuple[type[Exception], ...] = (zipfile.BadZipFile, EOFError, zlib.error)
-#: what SB3's ``load`` raises for a tensor entry (``policy.pth``...) that torch cannot read
-UNREADABLE_TENSORS: tuple[type[Exception], ...] = (pickle.UnpicklingError, *DAMAGED_ZIP)
+
+
+@contextlib.contextmanager
+def quiet_tensor_reads() -> Iterator[None]:
+    """Within the block, torch's warning about the pickle protocol of a damaged tensor entry is not shown (the
+    entry is reported as unreadable instead, :func:`check_tensors`)."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="Detected pickle protocol")
+        yield
 
 
 def _damaged(path: Any, error: BaseException) -> ValueError:
@@ -79,7 +86,7 @@ def check_tensors(path: Any) -> None:
             if not name.endswith(".pth"):
                 continue
             try:
-                with archive.open(name) as entry:
+                with archive.open(name) as entry, quiet_tensor_reads():
                     th.load(entry, map_location="cpu", weights_only=True)
             except DAMAGED_ZIP as error:
                 raise _damaged(path, error) from None
