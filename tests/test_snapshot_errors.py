@@ -2,6 +2,7 @@
 wrong and what to do."""
 
 import re
+
 import gymnasium as gym
 import numpy as np
 import pytest
