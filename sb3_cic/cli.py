@@ -164,12 +164,13 @@ def zoo_parser(command: str) -> argparse.ArgumentParser:
     )
     parser.add_argument("--zoo-help", action="store_true", help="rl-zoo's train options")
     parser.add_argument("--algo", default="cic", help="cic, icm, ..., or ddpg")
-    parser.add_argument("--env", required=True, help="env id: URLB/<domain>-v0 to pre-train, a task id to fine-tune")
+    parser.add_argument("--env", required=True, help="the task id (URLB/<domain>-<task>-v0)" if finetune
+                        else "env id: URLB/<domain>-v0 to pre-train (a method), a task id (ddpg)")
     if finetune:
         parser.add_argument("-i", "--trained-agent", required=True, help="the pre-trained model (.zip)")
     parser.add_argument("-conf", "--conf-file", default=None, help="rl-zoo yaml (default: zoo_configs/<algo>.yml)")
     parser.add_argument("-params", "--hyperparams", nargs="+", default=[],
-                        help="rl-zoo's key:value overrides of the yaml (e.g. batch_size:256)")
+                        help="rl-zoo's key:value overrides of the yaml (e.g. batch_size:256; default: none)")
     parser.add_argument("--small", action="store_true", help=small_help())
     parser.add_argument("--eval-freq", type=option_type("eval_freq"), default=None,
                         help="steps between the yaml's URLBEvalCallback evaluations (default: the yaml's)")
