@@ -273,7 +273,8 @@ def _check_run_inputs(
         _check_learning_starts(settings, hyperparams, int(settings.finetune_steps or n_timesteps), "fine-tuning")
     if from_scratch:
         return
-    hyperparams, _, n_timesteps, _ = zoo.zoo_hyperparams(method, f"URLB/{domain}-v0", config, settings.overrides(finetune=False))
+    env_id = f"URLB/{domain}-v0"
+    hyperparams, _, n_timesteps, _ = zoo.zoo_hyperparams(method, env_id, config, settings.overrides(finetune=False))
     _check_learning_starts(settings, hyperparams, int(settings.pretrain_steps or n_timesteps), "pre-training")
     if snapshot is not None:
         pre_file = pretrain_dir(study, method, domain) / "result.json"

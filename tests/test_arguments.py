@@ -44,7 +44,7 @@ DDPG_CASES = [
     if not (name == "skill_dim" and cls not in SKILLED)  # skill_dim of a method without skills: its own error
     and not (name == "skill_dim" and cls is APS)  # APS's is sf_dim (below)
     for value in bad_values(name)
-    if not (name == "skill_resample_every" and value is None)
+    if value is not None  # None: the default of an optional argument
 ]
 #: the arguments of a method's own constructor (not of URLBDDPG, its reward module or its prior)
 OWN_ARGUMENTS = {APS: ("sf_dim", "regression_step", "regression_max_samples")}

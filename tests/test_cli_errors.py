@@ -158,7 +158,8 @@ STUDY = ["study", "s", "--methods", "ddpg", "--domains", "walker", "--tasks", "s
         # options that do not go together
         (["protocol", "--snapshots", "5000", "--pretrain-steps", "3000", "--study", "s"],
          "--snapshots \\[5000\\] above the 3000 pre-training steps"),
-        (["protocol", "--batch-size", "64", "--buffer-size", "32", "--study", "s"], "--batch-size 64 is above --buffer-size 32"),
+        (["protocol", "--batch-size", "64", "--buffer-size", "32", "--study", "s"],
+         "--batch-size 64 is above --buffer-size 32"),
         (["protocol", "--method", "ddpg", "--tasks", "stand", "--learning-starts", "99999999", "--study", "s"],
          "learning_starts 99999999 is not below the fine-tuning's 100000 steps"),
         (["protocol", "--method", "cic", "--tasks", "stand", "--learning-starts", "5000", "--pretrain-steps", "3000",

@@ -179,14 +179,14 @@ RANGES: dict[str, Range] = {
     "tile_size": Range(16, 1024, integer=True),
 }
 
-#: the methods' arguments that are flags (a bool, not a number that happens to be true)
-FLAGS: frozenset[str] = frozenset({"knn_avg", "knn_rms", "minus_mean"})
+#: the arguments that are flags (a bool, not a number that happens to be true; None: the default of an optional one)
+FLAGS: frozenset[str] = frozenset({"knn_avg", "knn_rms", "minus_mean", "reward_free"})
 
 #: URLBDDPG's numeric arguments (checked by :func:`check_ddpg_arguments`)
 DDPG_ARGUMENTS: tuple[str, ...] = (
     "learning_rate", "buffer_size", "batch_size", "learning_starts", "tau", "gamma", "gradient_steps", "train_freq",
     "n_steps", "exploration_std", "exploration_clip", "stats_window_size", "skill_dim", "skill_resample_every",
-    "verbose", "seed",
+    "verbose", "seed", "reward_free",
 )
 
 

@@ -26,8 +26,10 @@ def build_parser() -> argparse.ArgumentParser:
                         help="fine-tune from the snapshot at this pre-training step (one of --snapshots; default: "
                         "the final one); the runs are <method>@STEP")
     add_settings_arguments(parser)
-    parser.add_argument("--address", default=None, help="join a running Ray cluster (auto, ray://host:10001...; default: start a local one)")
-    parser.add_argument("--workers", type=option_type("workers"), default=1, help="runs at a time of the local Ray instance (no --address)")
+    parser.add_argument("--address", default=None,
+                        help="join a running Ray cluster (auto, ray://host:10001...; default: start a local one)")
+    parser.add_argument("--workers", type=option_type("workers"), default=1,
+                        help="runs at a time of the local Ray instance (no --address)")
     parser.add_argument("--cpus-per-run", type=option_type("cpus_per_run"), default=1, help="CPUs Ray gives each run")
     parser.add_argument("--gpus-per-run", type=option_type("gpus_per_run"), default=0, help="e.g. 0.25: four runs per GPU")
     parser.add_argument("--max-retries", type=option_type("max_retries"), default=3,
