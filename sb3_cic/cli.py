@@ -18,6 +18,11 @@ the grid sweep of the yaml's :class:`~sb3_cic.callbacks.SkillGridSweepCallback` 
 A command that fails on bad input (an unknown method, a snapshot of another domain, a study folder made with
 other settings, an unknown option...) prints one line, ``sb3-cic <command>: error: <message>``, exits with
 code 2 and leaves nothing behind (see :data:`USER_ERRORS`, :func:`main`); other errors raise as they are.
+Every numeric option is checked for its type and range while the command line is read (the ranges of
+:data:`sb3_cic.common.arguments.RANGES`; rl-zoo's counts too, :data:`ZOO_OPTIONS`), and no option may be abbreviated,
+rl-zoo's included (``--smal`` is no ``--small``). ``--help`` shows each option's default and loads neither torch nor
+Ray: the heavy modules are imported by the command handlers, after the arguments are read (``--zoo-help`` shows
+rl-zoo's own options of ``train``, ``finetune``, ``enjoy`` and ``record-video``).
 """
 
 from __future__ import annotations
