@@ -34,14 +34,36 @@ if "MUJOCO_GL" not in os.environ and sys.platform.startswith("linux"):
     if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
         os.environ["MUJOCO_GL"] = _headless_gl_backend()
 
+from typing import TYPE_CHECKING, Any  # noqa: E402
+
 import gymnasium as gym  # noqa: E402
 
 from envs.dict_obs import FlatStateDict  # noqa: E402
-from envs.dmc import DMCEnv  # noqa: E402
 from envs.gridworld import GRID_EPISODE_LENGTH, GridWorldEnv  # noqa: E402
 from envs.reward_free import RewardFree  # noqa: E402
-from envs.skill_wrapper import SkillObservationWrapper, VecSkillObservation  # noqa: E402
 from envs.tasks import DOMAIN_TASKS, URLB_TASKS, loader  # noqa: E402
+
+if TYPE_CHECKING:
+    from envs.dmc import DMCEnv
+    from envs.skill_wrapper import SkillObservationWrapper, VecSkillObservation
+
+#: the names that load their module on first use (dm_control, Stable-Baselines3 and torch are not imported by
+#: registering the ids: ``sb3-cic --help`` stays fast)
+_LAZY = {"DMCEnv": "envs.dmc", "SkillObservationWrapper": "envs.skill_wrapper", "VecSkillObservation": "envs.skill_wrapper"}
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        import importlib
+
+        value = getattr(importlib.import_module(_LAZY[name]), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'envs' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_LAZY})
 
 #: episode length of each domain (time limit / control timestep)
 EPISODE_LENGTH = {
@@ -59,6 +81,8 @@ def make_dmc(domain: str, task: str, reward_free: bool = False, **kwargs) -> DMC
     :param reward_free: return reward 0 (pre-training), keeping the task reward in ``info``
     :param kwargs: passed to :class:`envs.dmc.DMCEnv` (``render_mode``, ``render_size``, ...)
     """
+    from envs.dmc import DMCEnv
+
     return DMCEnv(loader(domain, task), reward_free=reward_free, **kwargs)
 
 

@@ -20,6 +20,11 @@ the grid sweep of the yaml's :class:`~sb3_cic.callbacks.SkillGridSweepCallback` 
 A command that fails on bad input (an unknown method, a snapshot of another domain, a study folder made with
 other settings, an unknown option...) prints one line, ``sb3-cic <command>: error: <message>``, exits with
 code 2 and leaves nothing behind (see :data:`USER_ERRORS`, :func:`main`); other errors raise as they are.
+Every numeric option is checked for its type and range while the command line is read (the ranges of
+:data:`sb3_cic.common.arguments.RANGES`; rl-zoo's counts too, :data:`ZOO_OPTIONS`), and no option may be abbreviated,
+rl-zoo's included (``--smal`` is no ``--small``). ``--help`` shows each option's default and loads neither torch nor
+Ray: the heavy modules are imported by the command handlers, after the arguments are read (``--zoo-help`` shows
+rl-zoo's own options of ``train``, ``finetune``, ``enjoy`` and ``record-video``).
 """
 
 from __future__ import annotations
@@ -34,10 +39,9 @@ from pathlib import Path
 from typing import Any, Iterator, NoReturn, Sequence
 
 import gymnasium as gym
-import yaml
 
-from sb3_cic import zoo
-from sb3_cic.common.fast_update import enable_tf32
+from sb3_cic.common.arguments import argument_parser, option_type
+from sb3_cic.parsers import small_help
 
 USAGE = """usage: sb3-cic {train,finetune,enjoy,record-video,protocol,study,status,report,benchmark-report,skills} [options]
 
@@ -52,7 +56,8 @@ USAGE = """usage: sb3-cic {train,finetune,enjoy,record-video,protocol,study,stat
   benchmark-report  the 12 tasks over several studies, beside the CIC paper's Tables 5 and 6
   skills        a snapshot's policy under n skills: one grid video and a plot (needs MUJOCO_GL=egl)
 
-Run `sb3-cic <command> --help` for the options (train/finetune/enjoy show rl-zoo's)."""
+Run `sb3-cic <command> --help` for the options of a command (train, finetune, enjoy, record-video: also
+--zoo-help for rl-zoo's own)."""
 
 #: the errors that mean bad input: reported in one line with exit code 2 (other exceptions raise as they are)
 USER_ERRORS: tuple[type[BaseException], ...] = (ValueError, FileNotFoundError, gym.error.Error)
@@ -69,38 +74,133 @@ def _usage_error(parser: argparse.ArgumentParser, message: str) -> NoReturn:
 @contextlib.contextmanager
 def _one_line_usage_errors() -> Iterator[None]:
     """Within the block, argparse's errors (ours and rl-zoo's) raise :class:`UsageError` instead of printing
-    the usage and exiting: :func:`main` reports them in one line like the other user errors."""
-    saved = argparse.ArgumentParser.error
+    the usage and exiting: :func:`main` reports them in one line like the other user errors. rl-zoo's parsers,
+    like ours, take no abbreviated option (``--smal`` is not ``--small``)."""
+    saved_error, saved_parse = argparse.ArgumentParser.error, argparse.ArgumentParser.parse_known_args
+
+    def parse_known_args(self: argparse.ArgumentParser, *args: Any, **kwargs: Any) -> Any:
+        self.allow_abbrev = False
+        return saved_parse(self, *args, **kwargs)
+
     argparse.ArgumentParser.error = _usage_error  # type: ignore[method-assign,assignment]
+    argparse.ArgumentParser.parse_known_args = parse_known_args  # type: ignore[method-assign,assignment]
     try:
         yield
     finally:
-        argparse.ArgumentParser.error = saved  # type: ignore[method-assign]
+        argparse.ArgumentParser.error = saved_error  # type: ignore[method-assign]
+        argparse.ArgumentParser.parse_known_args = saved_parse  # type: ignore[method-assign]
+
+
+#: rl-zoo's numeric options (their flags by name in :data:`~sb3_cic.common.arguments.RANGES`) that sb3-cic checks
+#: before passing them on; rl-zoo's defaults hold when they are not given
+ZOO_OPTIONS: dict[str, tuple[tuple[str, ...], str]] = {
+    "n_timesteps": (("-n", "--n-timesteps"), "steps (default: the yaml's n_timesteps; enjoy, record-video: 1000)"),
+    "seed": (("--seed",), "random seed (default: a random one; enjoy, record-video: 0)"),
+    "num_threads": (("--num-threads",), "torch threads (default: torch's)"),
+    "n_envs": (("--n-envs",), "envs (default: 1)"),
+    "n_eval_envs": (("--n-eval-envs",), "rl-zoo's evaluation envs (default: 1)"),
+    "save_freq": (("--save-freq",), "steps between saved checkpoints of the model (default: none)"),
+    "log_interval": (("--log-interval",), "episodes between log outputs (default: the algorithm's)"),
+    "exp_id": (("--exp-id",), "experiment id (default: 0, the latest; -1: no experiment folder)"),
+    "verbose": (("--verbose",), "verbosity (default: 1)"),
+}
+#: the :data:`ZOO_OPTIONS` of each command that passes its options to rl-zoo
+ZOO_COMMAND_OPTIONS: dict[str, tuple[str, ...]] = {
+    "train": ("n_timesteps", "seed", "num_threads", "n_eval_envs", "save_freq", "log_interval", "verbose"),
+    "finetune": ("n_timesteps", "seed", "num_threads", "n_eval_envs", "save_freq", "log_interval", "verbose"),
+    "enjoy": ("n_timesteps", "seed", "num_threads", "n_envs", "exp_id", "verbose"),
+    "record-video": ("n_timesteps", "seed", "n_envs", "exp_id"),
+}
+
+
+def _add_zoo_options(parser: argparse.ArgumentParser, command: str) -> None:
+    """The checked rl-zoo options of ``command`` (:data:`ZOO_COMMAND_OPTIONS`), default None (rl-zoo's)."""
+    for name in ZOO_COMMAND_OPTIONS[command]:
+        flags, text = ZOO_OPTIONS[name]
+        parser.add_argument(*flags, dest=name, type=option_type(name), default=None, help=text)
+
+
+def _zoo_options(known: argparse.Namespace, command: str) -> list[str]:
+    """The checked rl-zoo options given (:func:`_add_zoo_options`), as rl-zoo arguments."""
+    args: list[str] = []
+    for name in ZOO_COMMAND_OPTIONS[command]:
+        if getattr(known, name) is not None:
+            args += [ZOO_OPTIONS[name][0][-1], str(getattr(known, name))]
+    return args
+
+
+def passthrough_parser(command: str) -> argparse.ArgumentParser:
+    """The options of ``sb3-cic enjoy`` / ``record-video`` that sb3-cic reads or checks; the others go to rl-zoo's
+    script as they are (``--zoo-help`` lists them).
+
+    :param command: ``"enjoy"`` or ``"record-video"``
+    """
+    parser = argument_parser(
+        f"sb3-cic {command}",
+        f"rl-zoo's {command.replace('-', '_')} with the sb3-cic algorithms"
+        + (" (needs MUJOCO_GL=egl or glfw)" if command == "record-video" else ""),
+        epilog=f"Other options are rl-zoo's {command.replace('-', '_')} options, passed on as given: sb3-cic {command} "
+        "--zoo-help lists them (it loads torch: a few seconds).",
+    )
+    parser.add_argument("--zoo-help", action="store_true", help=f"rl-zoo's {command.replace('-', '_')} options")
+    parser.add_argument("-f", "--folder", default="logs", help="log folder")
+    _add_zoo_options(parser, command)
+    return parser
+
+
+def _passthrough_args(argv: Sequence[str], command: str) -> list[str]:
+    """The rl-zoo arguments of ``sb3-cic enjoy`` / ``record-video`` (``["--help"]`` for ``--zoo-help``)."""
+    if "--zoo-help" in argv:
+        return ["--help"]
+    known, rest = passthrough_parser(command).parse_known_args(list(argv))
+    return ["-f", known.folder, *_zoo_options(known, command), *rest]
+
+
+def zoo_parser(command: str) -> argparse.ArgumentParser:
+    """The options of ``sb3-cic train`` / ``finetune`` (``command``) that sb3-cic reads or checks; the others go to
+    rl-zoo's ``train`` as they are (``--zoo-help`` lists them).
+
+    :param command: ``"train"`` or ``"finetune"``
+    """
+    finetune = command == "finetune"
+    parser = argument_parser(
+        f"sb3-cic {command}",
+        "rl-zoo training on a task id from a pre-trained model (-i model.zip, loaded with load_pretrained)"
+        if finetune else "rl-zoo training: pre-training on URLB/<domain>-v0, or ddpg on a task id",
+        epilog="Other options are rl-zoo's train options, passed on as given: sb3-cic "
+        f"{command} --zoo-help lists them (it loads torch: a few seconds).",
+    )
+    parser.add_argument("--zoo-help", action="store_true", help="rl-zoo's train options")
+    parser.add_argument("--algo", default="cic", help="cic, icm, ..., or ddpg")
+    parser.add_argument("--env", required=True, help="the task id (URLB/<domain>-<task>-v0)" if finetune
+                        else "env id: URLB/<domain>-v0 to pre-train (a method), a task id (ddpg)")
+    if finetune:
+        parser.add_argument("-i", "--trained-agent", required=True, help="the pre-trained model (.zip)")
+    parser.add_argument("-conf", "--conf-file", default=None, help="rl-zoo yaml (default: zoo_configs/<algo>.yml)")
+    parser.add_argument("-params", "--hyperparams", nargs="+", default=[],
+                        help="rl-zoo's key:value overrides of the yaml (e.g. batch_size:256; default: none)")
+    parser.add_argument("--small", action="store_true", help=small_help())
+    parser.add_argument("--eval-freq", type=option_type("eval_freq"), default=None,
+                        help="steps between the yaml's URLBEvalCallback evaluations (default: the yaml's)")
+    parser.add_argument("--eval-episodes", type=option_type("eval_episodes"), default=None,
+                        help="episodes of each of those evaluations (default: the yaml's)")
+    parser.add_argument("-f", "--log-folder", default="logs", help="log folder")
+    parser.add_argument("--compile", action="store_true", help="compile_update=True: the update compiled as one graph")
+    parser.add_argument("--tf32", action="store_true", help="TF32 matrix products on CUDA")
+    _add_zoo_options(parser, command)
+    return parser
 
 
 def _zoo_args(argv: Sequence[str], finetune: bool) -> tuple[list[str], str, str, str]:
-    """Turn our train/finetune arguments into rl-zoo train arguments."""
-    parser = argparse.ArgumentParser(add_help=False)
-    parser.add_argument("--algo", default="cic")
-    parser.add_argument("--env", default=None)
-    parser.add_argument("-conf", "--conf-file", default=None)
-    parser.add_argument("-params", "--hyperparams", nargs="+", default=[])
-    parser.add_argument("--small", action="store_true")
-    parser.add_argument("--eval-freq", type=int, default=None)
-    parser.add_argument("--eval-episodes", type=int, default=None)
-    parser.add_argument("-f", "--log-folder", default="logs")
-    parser.add_argument("--compile", action="store_true")
-    parser.add_argument("--tf32", action="store_true")
-    known, rest = parser.parse_known_args(list(argv))
-    if known.env is None or "-h" in rest or "--help" in rest:
-        print(
-            "sb3-cic options: --small (CPU-sized hyperparameters), --eval-freq N and --eval-episodes N (the yaml's "
-            "URLBEvalCallback), --conf-file (default zoo_configs/<algo>.yml), -f/--log-folder (default logs), "
-            "--compile (compile_update=True: the update compiled as one graph), --tf32 (TF32 matrix products on CUDA)"
-            + (", -i <pre-trained model.zip> (required)" if finetune else "")
-            + ". rl-zoo's train options follow.\n"
-        )
-        return ["--help"], known.algo, "", known.log_folder
+    """Turn our train/finetune arguments into rl-zoo train arguments (``["--help"]`` for ``--zoo-help``)."""
+    argv = list(argv)
+    if "--zoo-help" in argv:
+        return ["--help"], "", "", ""
+    known, rest = zoo_parser("finetune" if finetune else "train").parse_known_args(argv)
+    from sb3_cic import zoo
+    from sb3_cic.common.fast_update import enable_tf32
+    from sb3_cic.common.save_util import check_saved_model
+
     algo = known.algo.lower()
     cls = zoo.get_algo(algo)
     config = known.conf_file or str(zoo.default_config(algo))
@@ -110,13 +210,14 @@ def _zoo_args(argv: Sequence[str], finetune: bool) -> tuple[list[str], str, str,
             f"{known.env} is a task: pre-train {algo} on the domain's reward-free id (URLB/<domain>-v0), "
             "then fine-tune with `sb3-cic finetune -i <model.zip>`"
         )
-    if finetune and not any(arg in rest for arg in ("-i", "--trained-agent")):
-        raise ValueError("sb3-cic finetune needs the pre-trained model: -i <model.zip>")
-    for key in ("-i", "--trained-agent"):
+    if finetune:
+        rest = ["-i", known.trained_agent, *rest]
+    for key in ("-i", "--trained-agent"):  # train -i: rl-zoo continues training a saved model
         if key in rest:
             model = rest[rest.index(key) + 1] if rest.index(key) + 1 < len(rest) else ""
             if not model.endswith(".zip") or not os.path.isfile(model):
                 raise ValueError(f"{key} {model}: no saved model (.zip) there")
+            check_saved_model(model).check_class(cls)  # before rl-zoo makes its run folder
     overrides = {**(zoo.SMALL_HYPERPARAMS if known.small else {}), **zoo.parse_hyperparams(known.hyperparams)}
     if known.compile:
         overrides["compile_update"] = True
@@ -124,6 +225,7 @@ def _zoo_args(argv: Sequence[str], finetune: bool) -> tuple[list[str], str, str,
         enable_tf32()
     overrides = zoo.zoo_overrides(config, known.env, overrides, known.eval_freq, known.eval_episodes)
     args = ["--algo", algo, "--env", known.env, "--conf-file", config, "-f", known.log_folder, "--eval-freq", "-1", *rest]
+    args += _zoo_options(known, "finetune" if finetune else "train")
     if overrides:
         args += ["--hyperparams", *zoo.format_hyperparams(overrides)]
     return args, algo, known.env, known.log_folder
@@ -200,8 +302,10 @@ def _run_zoo_train(args: list[str], algo: str | None = None, log_folder: str | N
 
 def train(argv: Sequence[str]) -> None:
     """``sb3-cic train``: rl_zoo3's train with the sb3-cic algorithms and configs."""
-    zoo.register_algos()
     args, algo, _, log_folder = _zoo_args(argv, finetune=False)
+    from sb3_cic import zoo
+
+    zoo.register_algos()
     _run_zoo_train(args, algo, log_folder)
 
 
@@ -213,15 +317,17 @@ def finetune(argv: Sequence[str]) -> Path | None:
     skill is written into the run's ``config.yml`` (``env_wrapper`` ``skill``) so that ``enjoy`` and
     ``record-video`` use it. Returns the run folder.
     """
+    args, algo, env_id, log_folder = _zoo_args(argv, finetune=True)
     import shutil
     import tempfile
 
     from huggingface_sb3 import EnvironmentName
     from rl_zoo3.utils import get_latest_run_id
+
+    from sb3_cic import zoo
     from sb3_cic.common.save_util import read_saved_data
 
     algos = zoo.register_algos()
-    args, algo, env_id, log_folder = _zoo_args(argv, finetune=True)
     if args == ["--help"]:
         _run_zoo_train(args)
         return None
@@ -251,6 +357,8 @@ def finetune(argv: Sequence[str]) -> Path | None:
 
 def _record_skill(config_file: Path, skill: list[float]) -> None:
     """Add ``skill`` to the :func:`sb3_cic.zoo.skill_wrapper` entry of a saved rl-zoo ``config.yml``."""
+    import yaml
+
     with open(config_file) as file:
         config = yaml.load(file, Loader=yaml.UnsafeLoader)
     wrappers = config.get("env_wrapper")
@@ -260,13 +368,6 @@ def _record_skill(config_file: Path, skill: list[float]) -> None:
             item["sb3_cic.zoo.skill_wrapper"] = {**(item["sb3_cic.zoo.skill_wrapper"] or {}), "skill": skill}
     with open(config_file, "w") as file:
         yaml.dump(config, file)
-
-
-def _with_default_folder(argv: Sequence[str]) -> list[str]:
-    argv = list(argv)
-    if not any(arg in argv for arg in ("-f", "--folder")):
-        argv = ["-f", "logs", *argv]
-    return argv
 
 
 @contextlib.contextmanager
@@ -280,10 +381,13 @@ def _assertions_as_user_errors() -> Iterator[None]:
 
 def enjoy(argv: Sequence[str]) -> None:
     """``sb3-cic enjoy``: rl_zoo3's enjoy with the sb3-cic algorithms (default folder ``logs``)."""
+    args = _passthrough_args(argv, "enjoy")
     from rl_zoo3.enjoy import enjoy as zoo_enjoy
 
+    from sb3_cic import zoo
+
     zoo.register_algos()
-    saved, sys.argv = sys.argv, ["rl_zoo3 enjoy", *_with_default_folder(argv)]
+    saved, sys.argv = sys.argv, ["rl_zoo3 enjoy", *args]
     try:
         with _assertions_as_user_errors():
             zoo_enjoy()
@@ -293,8 +397,11 @@ def enjoy(argv: Sequence[str]) -> None:
 
 def record_video(argv: Sequence[str]) -> None:
     """``sb3-cic record-video``: rl_zoo3's record_video script with the sb3-cic algorithms."""
+    args = _passthrough_args(argv, "record-video")
+    from sb3_cic import zoo
+
     zoo.register_algos()
-    saved, sys.argv = sys.argv, ["rl_zoo3 record_video", *_with_default_folder(argv)]
+    saved, sys.argv = sys.argv, ["rl_zoo3 record_video", *args]
     try:
         with _assertions_as_user_errors():
             runpy.run_module("rl_zoo3.record_video", run_name="__main__")
@@ -313,6 +420,9 @@ def _run(command: str, argv: list[str]) -> int:
     elif command in ("record-video", "record_video"):
         record_video(argv)
     elif command == "protocol":
+        from sb3_cic.parsers import build_parser
+
+        build_parser().parse_args(argv)  # --help and refused options before the protocol's code (torch) loads
         from sb3_cic.protocol import main as protocol_main
 
         protocol_main(argv)

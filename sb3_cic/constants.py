@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+#: URLB's pre-training snapshots (steps)
+DEFAULT_SNAPSHOTS: tuple[int, ...] = (100_000, 500_000, 1_000_000, 2_000_000)
+
 #: expert returns of the 12 URLB tasks (normalised score = return / expert)
 EXPERT_SCORES: dict[str, float] = {
     "walker_stand": 984.0,

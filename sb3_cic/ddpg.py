@@ -16,12 +16,13 @@ from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, ReplayBufferSamples, Schedule
 
 from sb3_cic.buffers import URLBReplayBuffer
-from sb3_cic.common.arguments import check_ddpg_arguments, check_range
+from sb3_cic.common.arguments import check_ddpg_arguments, check_range, check_ranges
 from sb3_cic.common.env_util import check_finite_step, env_id_of, prepare_env
 from sb3_cic.common.fast_update import UpdateMetrics, compiled_step
 from sb3_cic.common.method import MethodMixin
 from sb3_cic.common.rollout import LeanRolloutMixin
-from sb3_cic.common.save_util import SavedModel, is_optimizer_state, package_version, read_saved_data
+from sb3_cic.common.save_util import SavedModel, check_tensors, is_optimizer_state, package_version, quiet_tensor_reads
+from sb3_cic.common.save_util import read_saved_data
 from sb3_cic.common.skill_mixin import SkillMixin
 from sb3_cic.finetune import start_finetuning, with_finetune_callback
 from sb3_cic.policies import URLBPolicy, min_q, normalize_policy_kwargs
@@ -380,15 +381,21 @@ class URLBDDPG(MethodMixin, SkillMixin, LeanRolloutMixin, DDPG):
         """
         if "policy_kwargs" in kwargs:  # compared with the saved ones, which are normalised
             kwargs["policy_kwargs"] = normalize_policy_kwargs(kwargs["policy_kwargs"])
-        saved = SavedModel(read_saved_data(path, custom_objects))
+        check_ranges(kwargs)
+        saved = SavedModel(read_saved_data(path, custom_objects), source=path)
         env = saved.check(cls, env)
         try:
-            model = super().load(
-                path, env=env, device=device, custom_objects=custom_objects,
-                print_system_info=print_system_info, force_reset=force_reset, **kwargs,
-            )
-        except RuntimeError as error:  # the networks' state dicts do not fit this class's
+            with quiet_tensor_reads():
+                model = super().load(
+                    path, env=env, device=device, custom_objects=custom_objects,
+                    print_system_info=print_system_info, force_reset=force_reset, **kwargs,
+                )
+        except RuntimeError as error:  # the networks' state dicts do not fit this class's (or a damaged entry)
+            check_tensors(path)
             raise ValueError(f"{saved.describe()} does not fit {cls.__name__}: {error}{saved.version_note()}") from error
+        except Exception:  # a damaged tensor entry: named, without torch's advice to unpickle it
+            check_tensors(path)
+            raise
         model.package_version = package_version()  # what will save it next
         return model  # type: ignore[return-value]
 

@@ -31,6 +31,7 @@ from typing import Any
 import torch as th
 
 from sb3_cic import CIC, URLBDDPG, URLBEvalCallback
+from sb3_cic.common.arguments import NON_NEGATIVE_INT, argument_parser, option_type
 from sb3_cic.common.save_util import read_saved_data
 from sb3_cic.constants import EXPERT_SCORES
 from sb3_cic.protocol import evaluation_callback
@@ -82,29 +83,38 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     :return: ``{"CIC": history, "DDPG": history, "files": [...]}``, a history being URLBEvalCallback's
         ``(step, mean return, normalised score)`` list
     """
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argument_parser(
+        "python -m sb3_cic.demo",
+        "The main job at CPU size: a pre-trained CIC (a shipped snapshot) fine-tuned on a task beside DDPG from "
+        "scratch with the same networks, batch and budget, both evaluated as URLB does; prints both learning curves "
+        "and writes the plot, a skill video and the models into --out.",
+    )
     parser.add_argument("--domain", default="quadruped", choices=sorted(TASKS), help="URLB domain")
     parser.add_argument("--task", default=None, help="task of the domain (default: quadruped jump, walker flip)")
     parser.add_argument("--snapshot", type=Path, default=None, help="pre-trained CIC of the domain (default: the shipped one)")
-    parser.add_argument("--pretrain-steps", type=int, default=0, help="pre-train a fresh CIC for this long instead")
-    parser.add_argument("--hidden-dim", type=int, default=256, help="width of the fresh pre-training's networks")
-    parser.add_argument("--batch-size", type=int, default=256, help="batch of the fresh pre-training")
-    parser.add_argument("--steps", type=int, default=20_000, help="fine-tuning / from-scratch steps of each method")
-    parser.add_argument("--learning-starts", type=int, default=4_000,
+    parser.add_argument("--pretrain-steps", type=NON_NEGATIVE_INT.parse, default=0,
+                        help="pre-train a fresh CIC for this long instead (0: use the snapshot)")
+    parser.add_argument("--hidden-dim", type=option_type("hidden_dim"), default=256,
+                        help="width of the fresh pre-training's networks")
+    parser.add_argument("--batch-size", type=option_type("batch_size"), default=256, help="batch of the fresh pre-training")
+    parser.add_argument("--steps", type=option_type("steps"), default=20_000,
+                        help="fine-tuning / from-scratch steps of each method, above --learning-starts")
+    parser.add_argument("--learning-starts", type=option_type("learning_starts"), default=4_000,
                         help="random steps before learning (CIC: its skill sweep, 100 steps per candidate)")
-    parser.add_argument("--eval-every", type=int, default=2_000)
-    parser.add_argument("--eval-episodes", type=int, default=10, help="deterministic episodes per evaluation (URLB: 10)")
-    parser.add_argument("--skills", type=int, default=9, help="skills in the video (0: no video)")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--num-threads", type=int, default=1, help="torch threads (the study's runs use 1)")
+    parser.add_argument("--eval-every", type=option_type("eval_freq"), default=2_000, help="steps between evaluations")
+    parser.add_argument("--eval-episodes", type=option_type("eval_episodes"), default=10,
+                        help="deterministic episodes per evaluation (URLB: 10)")
+    parser.add_argument("--skills", type=option_type("video_skills"), default=9, help="skills in the video (0: no video)")
+    parser.add_argument("--seed", type=option_type("seed"), default=0, help="seed of both runs")
+    parser.add_argument("--num-threads", type=option_type("num_threads"), default=1,
+                        help="torch threads (the study's runs use 1)")
     parser.add_argument("--out", type=Path, default=Path("demo_output"), help="folder for the video, the plot and the models")
     args = parser.parse_args(argv)
     args.task = args.task or TASKS[args.domain][0]
     if args.task not in TASKS[args.domain]:
         parser.error(f"{args.domain} has no task {args.task!r}; its tasks: {', '.join(TASKS[args.domain])}")
-    if args.steps <= args.learning_starts or args.eval_every <= 0 or args.num_threads < 1:
-        parser.error(f"need --steps > --learning-starts, --eval-every > 0 and --num-threads >= 1 (got {args.steps}, "
-                     f"{args.learning_starts}, {args.eval_every}, {args.num_threads})")
+    if args.steps <= args.learning_starts:
+        parser.error(f"--steps {args.steps} must be above --learning-starts {args.learning_starts}")
     threads = th.get_num_threads()
     th.set_num_threads(args.num_threads)
     try:

@@ -21,7 +21,6 @@ need normalised scores, i.e. tasks with an expert score.
 
 from __future__ import annotations
 
-import argparse
 import csv
 import json
 import math
@@ -30,6 +29,8 @@ from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
+
+from sb3_cic.common.arguments import argument_parser, option_type
 
 #: rliable aggregate metrics, in report order
 METRICS: tuple[str, ...] = ("IQM", "Median", "Mean", "Optimality Gap")
@@ -342,6 +343,8 @@ def write_report(study: str | Path, reps: int = 2000, seed: int = 0) -> dict[str
     :return: the ``report.json`` content
     """
     study = Path(study)
+    if not study.is_dir():
+        raise FileNotFoundError(f"no such study folder: {study}")
     results = load_results(study)
     if not results:
         raise FileNotFoundError(f"no fine-tuning results under {study / 'finetune'}")
@@ -444,10 +447,13 @@ def write_report(study: str | Path, reps: int = 2000, seed: int = 0) -> dict[str
 
 def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     """``sb3-cic report <study>``."""
-    parser = argparse.ArgumentParser(prog="sb3-cic report", description="Score report of a URLB study folder.")
-    parser.add_argument("study", help="study folder (written by sb3-cic protocol)")
-    parser.add_argument("--reps", type=int, default=2000, help="bootstrap replications")
-    parser.add_argument("--seed", type=int, default=0, help="bootstrap seed")
+    parser = argument_parser(
+        "sb3-cic report",
+        "Score report of a URLB study folder: per-task scores, rliable aggregates and plots, written into the folder.",
+    )
+    parser.add_argument("study", help="study folder, written by sb3-cic study or sb3-cic protocol")
+    parser.add_argument("--reps", type=option_type("reps"), default=2000, help="bootstrap replications")
+    parser.add_argument("--seed", type=option_type("seed"), default=0, help="bootstrap seed")
     args = parser.parse_args(argv)
     report = write_report(args.study, reps=args.reps, seed=args.seed)
     print((Path(args.study) / "report.md").read_text())

@@ -35,8 +35,10 @@ from sb3_cic import zoo
 from sb3_cic.callbacks import SkillGridSweepCallback, URLBEvalCallback
 from sb3_cic.common.fast_update import enable_tf32
 from sb3_cic.common.resumable import ResumableCallback
-from sb3_cic.constants import EXPERT_SCORES
+from sb3_cic.common.arguments import RANGES, check_argument
+from sb3_cic.constants import DEFAULT_SNAPSHOTS, EXPERT_SCORES
 from sb3_cic.finetune import finetune_callbacks
+from sb3_cic.parsers import add_settings_arguments, build_parser, settings_values  # noqa: F401  (protocol's command line)
 from sb3_cic.study.checkpoint import RunCheckpointCallback, RunFolder, write_json
 from sb3_cic.study.graph import build_graph, record_runs
 from sb3_cic.study.layout import (
@@ -50,8 +52,6 @@ from sb3_cic.study.layout import (
     task_name,
 )
 
-#: URLB's pre-training snapshots
-DEFAULT_SNAPSHOTS: tuple[int, ...] = (100_000, 500_000, 1_000_000, 2_000_000)
 
 
 @dataclass
@@ -102,6 +102,13 @@ class Settings:
     )
     #: the study settings only a pre-training (and the fine-tunings from it) uses; a run from scratch does not
     PRETRAIN_KEYS: ClassVar[tuple[str, ...]] = ("pretrain_steps", "snapshots")
+
+    def __post_init__(self) -> None:
+        """A ``ValueError`` naming the first setting out of its range (:data:`~sb3_cic.common.arguments.RANGES`)."""
+        for key, value in asdict(self).items():
+            for item in value if key == "snapshots" else [value]:
+                if item is not None and key in RANGES:
+                    check_argument(key, item)
 
     def study_settings(self, pretrained: bool = True) -> dict[str, Any]:
         """The settings recorded in ``study.json`` (:attr:`STUDY_KEYS`), as JSON values.
@@ -262,10 +269,13 @@ def _check_run_inputs(
         raise ValueError(f"no yaml file {config} (--conf-file)")
     overrides = settings.overrides(finetune=not from_scratch)
     for task in tasks:  # rl-zoo's ValueError for a missing entry
-        zoo.zoo_hyperparams(method, task_env_id(domain, task), config, overrides)
+        hyperparams, _, n_timesteps, _ = zoo.zoo_hyperparams(method, task_env_id(domain, task), config, overrides)
+        _check_learning_starts(settings, hyperparams, int(settings.finetune_steps or n_timesteps), "fine-tuning")
     if from_scratch:
         return
-    _, _, n_timesteps, _ = zoo.zoo_hyperparams(method, f"URLB/{domain}-v0", config, settings.overrides(finetune=False))
+    env_id = f"URLB/{domain}-v0"
+    hyperparams, _, n_timesteps, _ = zoo.zoo_hyperparams(method, env_id, config, settings.overrides(finetune=False))
+    _check_learning_starts(settings, hyperparams, int(settings.pretrain_steps or n_timesteps), "pre-training")
     if snapshot is not None:
         pre_file = pretrain_dir(study, method, domain) / "result.json"
         if pre_file.exists():
@@ -274,6 +284,42 @@ def _check_run_inputs(
             saved = snapshot_steps(settings, int(settings.pretrain_steps or n_timesteps))
         if int(snapshot) not in saved:
             raise ValueError(f"no snapshot at {snapshot} steps: the pre-training saves {saved} (--snapshots)")
+
+
+def _check_learning_starts(settings: Settings, hyperparams: dict[str, Any], steps: int, phase: str) -> None:
+    """``ValueError`` when a ``learning_starts`` given in ``settings`` leaves a run of ``steps`` steps no update.
+
+    :param settings: the command's settings
+    :param hyperparams: the run's hyperparameters (the yaml's with the settings on top)
+    :param steps: the run's steps
+    :param phase: "pre-training" or "fine-tuning", for the message
+    """
+    learning_starts = hyperparams.get("learning_starts")
+    if settings.learning_starts is not None and learning_starts is not None and learning_starts >= steps:
+        raise ValueError(
+            f"learning_starts {learning_starts} is not below the {phase}'s {steps} steps: it would never update "
+            "(--learning-starts)"
+        )
+
+
+def check_learning_starts(runs: Sequence[Any], settings: Settings) -> None:
+    """``ValueError`` before anything is written when the ``learning_starts`` of ``settings`` leaves one of ``runs``
+    (:class:`~sb3_cic.study.graph.Run`, the study's) no update; nothing to check when it is the yaml's.
+
+    :param runs: the command's runs
+    :param settings: the command's settings
+    """
+    if settings.learning_starts is None:
+        return
+    for method, domain, task in sorted({(run.method, run.domain, run.task) for run in runs}, key=str):
+        from_scratch = not zoo.has_reward_module(zoo.get_algo(method))
+        if task is None:
+            env_id, steps, phase = f"URLB/{domain}-v0", settings.pretrain_steps, "pre-training"
+        else:
+            env_id, steps, phase = task_env_id(domain, task), settings.finetune_steps, "fine-tuning"
+        overrides = settings.overrides(finetune=task is not None and not from_scratch)
+        hyperparams, _, n_timesteps, _ = zoo.zoo_hyperparams(method, env_id, None, overrides)
+        _check_learning_starts(settings, hyperparams, int(steps or n_timesteps), phase)
 
 
 def _describe(hyperparams: dict[str, Any]) -> dict[str, str]:
@@ -573,75 +619,10 @@ def run_protocol(
     return results
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """Arguments of ``sb3-cic protocol``."""
-    parser = argparse.ArgumentParser(
-        prog="sb3-cic protocol",
-        description="URLB protocol: pre-train once on URLB/<domain>-v0, fine-tune on the domain's tasks over seeds.",
-    )
-    parser.add_argument("--method", "--algo", default="cic", help="cic, icm, ..., or ddpg (from scratch)")
-    parser.add_argument("--domain", default="walker", choices=sorted(DOMAIN_TASKS))
-    parser.add_argument("--study", default="runs/urlb", help="study folder")
-    parser.add_argument("--tasks", nargs="+", default=None, help="tasks (default: all of the domain)")
-    parser.add_argument("--seeds", nargs="+", type=int, default=list(range(10)))
-    parser.add_argument("--pretrain-seed", type=int, default=0)
-    parser.add_argument("--snapshot", type=int, default=None, help="fine-tune from this snapshot (default: final)")
-    parser.add_argument("--from-scratch", action="store_true", default=None, help="no pre-training (default for ddpg)")
-    parser.add_argument("--conf-file", default=None, help="yaml (default zoo_configs/<method>.yml)")
-    add_settings_arguments(parser)
-    return parser
-
-
-def add_settings_arguments(parser: argparse.ArgumentParser) -> None:
-    """The scale, evaluation and checkpoint options of ``protocol`` and ``study`` (see :class:`Settings`)."""
-    parser.add_argument("--snapshots", nargs="+", type=int, default=list(DEFAULT_SNAPSHOTS))
-    parser.add_argument("--small", action="store_true", help="hidden 32, batch 32, learning_starts 500, buffer 1e5")
-    parser.add_argument("--hidden-dim", type=int, default=None)
-    parser.add_argument("--batch-size", type=int, default=None)
-    parser.add_argument("--learning-starts", type=int, default=None, help="also the fine-tuning sweep length")
-    parser.add_argument("--buffer-size", type=int, default=None)
-    parser.add_argument("--pretrain-steps", type=int, default=None, help="default: the yaml's (2M)")
-    parser.add_argument("--finetune-steps", type=int, default=None, help="default: the yaml's (100k)")
-    parser.add_argument("--eval-freq", type=int, default=10_000)
-    parser.add_argument("--eval-episodes", type=int, default=10)
-    parser.add_argument(
-        "--checkpoint-every", nargs="+", type=int, default=None, metavar="STEPS",
-        help="steps between checkpoints: one value for every run, or two (pre-training, fine-tuning); "
-        "default 50000 20000; 0: none",
-    )
-    parser.add_argument("--device", default="auto")
-    parser.add_argument("--num-threads", type=int, default=None)
-    parser.add_argument("--compile", action="store_true", help="compile_update=True: each update compiled as one graph")
-    parser.add_argument("--tf32", action="store_true", help="TF32 matrix products on CUDA (off by default)")
-    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
-    parser.add_argument("--verbose", type=int, default=0)
-
-
 def settings_from_args(args: argparse.Namespace) -> Settings:
-    """The :class:`Settings` of the options of :func:`add_settings_arguments`."""
-    small = {"hidden_dim": 32, "batch_size": 32, "learning_starts": 500, "buffer_size": 100_000} if args.small else {}
-    every = args.checkpoint_every or [Settings.pretrain_checkpoint_every, Settings.finetune_checkpoint_every]
-    if len(every) > 2 or min(every) < 0:
-        raise ValueError(f"--checkpoint-every takes one or two values >= 0, got {every}")
-    return Settings(
-        hidden_dim=args.hidden_dim or small.get("hidden_dim"),
-        batch_size=args.batch_size or small.get("batch_size"),
-        learning_starts=args.learning_starts or small.get("learning_starts"),
-        buffer_size=args.buffer_size or small.get("buffer_size"),
-        pretrain_steps=args.pretrain_steps,
-        finetune_steps=args.finetune_steps,
-        eval_freq=args.eval_freq,
-        eval_episodes=args.eval_episodes,
-        snapshots=tuple(args.snapshots),
-        device=args.device,
-        num_threads=args.num_threads,
-        compile_update=args.compile,
-        tf32=args.tf32,
-        progress_bar=not args.no_progress,
-        verbose=args.verbose,
-        pretrain_checkpoint_every=every[0],
-        finetune_checkpoint_every=every[-1],
-    )
+    """The :class:`Settings` of the options of :func:`~sb3_cic.parsers.add_settings_arguments` (a ``ValueError``
+    naming the options that do not go together, see :func:`~sb3_cic.parsers.settings_values`)."""
+    return Settings(**settings_values(args))
 
 
 def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:

@@ -14,16 +14,16 @@ Usage::
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
-from typing import Any, Sequence
+from typing import TYPE_CHECKING, Any, Sequence
 
 import gymnasium as gym
 import numpy as np
 
-from envs import SkillObservationWrapper
-from sb3_cic.common.save_util import read_saved_data
-from sb3_cic.ddpg import URLBDDPG
+from sb3_cic.common.arguments import argument_parser, option_type
+
+if TYPE_CHECKING:  # torch loads with the snapshot, not with ``sb3-cic skills --help``
+    from sb3_cic.ddpg import URLBDDPG
 
 
 def load_snapshot(path: str | Path, device: str = "cpu") -> URLBDDPG:
@@ -32,9 +32,10 @@ def load_snapshot(path: str | Path, device: str = "cpu") -> URLBDDPG:
     :param path: saved model (``.zip``)
     :param device: torch device
     """
+    from sb3_cic.common.save_util import check_saved_model
     from sb3_cic.zoo import get_algo
 
-    cls = get_algo(read_saved_data(path).get("algorithm") or "ddpg")
+    cls = get_algo(check_saved_model(path).algorithm or "ddpg")  # a damaged file: a ValueError naming it
     return cls.load(path, device=device)
 
 
@@ -79,6 +80,8 @@ def rollout_skills(
     frames: list[list[np.ndarray]] = [[] for _ in range(steps + 1)]
     positions = np.zeros((len(skills), steps + 1, 3))
     kwargs: dict[str, Any] = {"render_mode": "rgb_array", "render_size": (size, size)} if render else {}
+    from envs import SkillObservationWrapper
+
     for i, skill in enumerate(skills):
         env = SkillObservationWrapper(gym.make(env_id, **kwargs), model.skill_prior, resample_every=None)
         obs, _ = env.reset(seed=seed)
@@ -206,16 +209,20 @@ def show_skills(
 
 def main(argv: Sequence[str] | None = None) -> None:
     """``sb3-cic skills``."""
-    parser = argparse.ArgumentParser(prog="sb3-cic skills", description=__doc__.split("\n")[0])
+    parser = argument_parser(
+        "sb3-cic skills",
+        "What a pre-trained policy does under several skills: one grid video (each tile a skill) and a plot of where "
+        "each skill takes the body. Rendering needs an OpenGL backend (headless: MUJOCO_GL=egl).",
+    )
     parser.add_argument("snapshot", type=Path, help="saved skill model (.zip)")
-    parser.add_argument("--n", type=int, default=9, help="number of skills (tiles)")
-    parser.add_argument("--steps", type=int, default=250, help="env steps per skill")
+    parser.add_argument("--n", type=option_type("n_skills"), default=9, help="number of skills (tiles)")
+    parser.add_argument("--steps", type=option_type("steps"), default=250, help="env steps per skill")
     parser.add_argument("--out", default="skills.mp4", help="video file (.mp4 or .gif)")
-    parser.add_argument("--plot", default=None, help="PNG of where each skill goes")
+    parser.add_argument("--plot", default=None, help="PNG of where each skill goes (default: no plot)")
     parser.add_argument("--no-video", action="store_true", help="only the plot: nothing rendered, no OpenGL needed")
     parser.add_argument("--env", default=None, help="env id (default: the snapshot's pre-training env)")
-    parser.add_argument("--size", type=int, default=160, help="tile size in pixels")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--size", type=option_type("tile_size"), default=160, help="tile size in pixels")
+    parser.add_argument("--seed", type=option_type("seed"), default=0, help="seed of the envs (the same start for each skill)")
     parser.add_argument("--grid", action="store_true", help="the prior's fine-tuning grid instead of random skills")
     args = parser.parse_args(argv)
     if not args.snapshot.exists():

@@ -11,6 +11,8 @@ from abc import ABC, abstractmethod
 import numpy as np
 import torch as th
 
+from sb3_cic.common.arguments import RANGES
+
 
 class SkillPrior(ABC):
     """Base class of skill priors.
@@ -21,9 +23,7 @@ class SkillPrior(ABC):
     """
 
     def __init__(self, dim: int, low: float, high: float) -> None:
-        if dim < 1:
-            raise ValueError(f"skill dim must be >= 1, got {dim}")
-        self.dim = int(dim)
+        self.dim = int(RANGES["skill_dim"].check("skill dim", dim))
         self.low = float(low)
         self.high = float(high)
 

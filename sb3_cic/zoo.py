@@ -29,16 +29,15 @@ from stable_baselines3.common.type_aliases import GymEnv
 import envs  # noqa: F401  (registers the URLB ids)
 from envs.skill_wrapper import SkillObservationWrapper
 from sb3_cic.ddpg import URLBDDPG
+from sb3_cic.parsers import SMALL_SETTINGS
 
 #: folder of the rl-zoo yaml files of this repository (``zoo_configs/<algo>.yml``)
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "zoo_configs"
 
-#: CPU-sized hyperparameters (``sb3-cic train --small``, ``sb3-cic protocol --small``)
+#: CPU-sized hyperparameters (``sb3-cic train --small``): :data:`sb3_cic.parsers.SMALL_SETTINGS` as rl-zoo overrides
 SMALL_HYPERPARAMS: dict[str, Any] = {
-    "batch_size": 32,
-    "learning_starts": 500,
-    "buffer_size": 100_000,
-    "policy_kwargs": "dict(hidden_dim=32)",
+    **{key: value for key, value in SMALL_SETTINGS.items() if key != "hidden_dim"},
+    "policy_kwargs": f"dict(hidden_dim={SMALL_SETTINGS['hidden_dim']})",
 }
 
 #: algorithms that ``--methods all`` of a study leaves out (name them to run them): ``fixed``, the CIC paper's

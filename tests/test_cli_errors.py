@@ -39,7 +39,7 @@ def _fails(arguments: list[str], capsys: pytest.CaptureFixture, folder: Path) ->
     assert exit_info.value.code == 2, err
     lines = err.strip().splitlines()
     assert len(lines) == 1 and "Traceback" not in err, err
-    assert re.match(r"sb3-cic( \w+)?: error: ", lines[0]), lines[0]
+    assert re.match(r"sb3-cic( [\w-]+)?: error: ", lines[0]), lines[0]
     assert _listing(folder) == before  # nothing left behind
     assert argparse.ArgumentParser.error is not None and argparse.ArgumentParser.error.__module__ == "argparse"
     return lines[0]
@@ -66,13 +66,13 @@ def workdir(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
         (["protocol", "--bogus"], "unrecognized arguments: --bogus \\(see sb3-cic protocol --help\\)"),
         (["study", "s", "--methods", "cicc"], "unknown algorithm 'cicc'"),
         (["study", "s", "--methods", "ddpg", "--domains", "walker", "--tasks", "stand", "--workers", "0"],
-         "workers must be an int >= 1"),
+         "argument --workers: must be an int >= 1, got '0'"),
         (["study"], "the following arguments are required: study"),
         (["status", "s"], "s is not a study folder"),
-        (["report", "s"], "no fine-tuning results under s/finetune"),
+        (["report", "s"], "no such study folder: s$"),
         (["train", "--algo", "cic", "--env", "URLB/walker-flip-v0", "--small"], "is a task: pre-train cic"),
         (["train", "--algo", "cicc", "--env", "URLB/walker-v0"], "unknown algorithm 'cicc'"),
-        (["finetune", "--algo", "cic", "--env", "URLB/walker-flip-v0"], "needs the pre-trained model"),
+        (["finetune", "--algo", "cic", "--env", "URLB/walker-flip-v0"], "arguments are required: -i/--trained-agent"),
         (["finetune", "--algo", "cic", "--env", "URLB/walker-flip-v0", "-i", "missing.zip"], "-i missing.zip: no saved"),
         (["enjoy", "--algo", "cic", "--env", "URLB/walker-flip-v0", "--no-render"], "folder was not found"),
         (["skills", "missing.zip"], "no snapshot at missing.zip"),
@@ -120,3 +120,72 @@ def test_entry_point_prints_one_line(tmp_path: Path):
         "['aps', 'apt', 'cic', 'ddpg', 'diayn', 'disagreement', 'icm', 'moss', 'protorl', 'rnd', 'smm', 'urlbddpg']"
     ]
     assert list(tmp_path.iterdir()) == []
+
+
+#: a run of the study command on one method, domain, task and seed (nothing runs: each case fails before)
+STUDY = ["study", "s", "--methods", "ddpg", "--domains", "walker", "--tasks", "stand", "--seeds", "0"]
+
+
+@pytest.mark.parametrize(
+    "arguments, message",
+    [
+        # counts and sizes out of range: refused while the command line is read, before anything is written
+        (["train", "--algo", "cic", "--env", "URLB/walker-v0", "-n", "-100"],
+         "argument -n/--n-timesteps: must be an int >= 1, got '-100'"),
+        (["train", "--algo", "cic", "--env", "URLB/walker-v0", "--eval-episodes", "0"], "argument --eval-episodes: must be"),
+        (["finetune", "--algo", "cic", "--env", "URLB/walker-flip-v0", "-i", str(WALKER_SNAPSHOT), "--seed", "-1"],
+         "argument --seed: must be an int in \\[0, 4294967295\\], got '-1'"),
+        (["protocol", "--pretrain-steps", "-5", "--study", "s"], "argument --pretrain-steps: must be an int >= 1, got '-5'"),
+        (["protocol", "--finetune-steps", "-5", "--study", "s"], "argument --finetune-steps: must be an int >= 1, got '-5'"),
+        (["protocol", "--finetune-steps", "0", "--study", "s"], "argument --finetune-steps: must be an int >= 1, got '0'"),
+        ([*STUDY, "--finetune-steps", "-5"], "argument --finetune-steps: must be an int >= 1, got '-5'"),
+        (["protocol", "--eval-episodes", "0", "--study", "s"], "argument --eval-episodes: must be an int >= 1, got '0'"),
+        (["protocol", "--eval-freq", "0", "--study", "s"], "argument --eval-freq: must be an int >= 1, got '0'"),
+        (["protocol", "--hidden-dim", "0", "--study", "s"], "argument --hidden-dim: must be an int >= 1, got '0'"),
+        (["protocol", "--batch-size", "0", "--study", "s"], "argument --batch-size: must be an int >= 1, got '0'"),
+        (["protocol", "--batch-size", "1.5", "--study", "s"], "argument --batch-size: must be an int >= 1, got '1.5'"),
+        (["protocol", "--seeds", "0", "-3", "--study", "s"], "argument --seeds: must be an int in"),
+        (["protocol", "--num-threads", "0", "--study", "s"], "argument --num-threads: must be an int >= 1"),
+        (["protocol", "--checkpoint-every", "-1", "--study", "s"], "argument --checkpoint-every: must be an int >= 0"),
+        ([*STUDY, "--max-retries", "-1"], "argument --max-retries: must be an int >= 0, got '-1'"),
+        ([*STUDY, "--cpus-per-run", "0"], "argument --cpus-per-run: must be a finite number > 0, got '0'"),
+        ([*STUDY, "--gpus-per-run", "nan"], "argument --gpus-per-run: must be a finite number >= 0, got 'nan'"),
+        (["report", "s", "--reps", "0"], "argument --reps: must be an int >= 1, got '0'"),
+        (["skills", "x.zip", "--n", "0"], "argument --n: must be an int >= 1, got '0'"),
+        (["skills", "x.zip", "--steps", "-1"], "argument --steps: must be an int >= 1, got '-1'"),
+        (["enjoy", "--algo", "cic", "--env", "URLB/walker-flip-v0", "-n", "0"], "argument -n/--n-timesteps: must be"),
+        (["record-video", "--algo", "cic", "--env", "URLB/walker-flip-v0", "--n-envs", "0"], "argument --n-envs: must be"),
+        # options that do not go together
+        (["protocol", "--snapshots", "5000", "--pretrain-steps", "3000", "--study", "s"],
+         "--snapshots \\[5000\\] above the 3000 pre-training steps"),
+        (["protocol", "--batch-size", "64", "--buffer-size", "32", "--study", "s"],
+         "--batch-size 64 is above --buffer-size 32"),
+        (["protocol", "--method", "ddpg", "--tasks", "stand", "--learning-starts", "99999999", "--study", "s"],
+         "learning_starts 99999999 is not below the fine-tuning's 100000 steps"),
+        (["protocol", "--method", "cic", "--tasks", "stand", "--learning-starts", "5000", "--pretrain-steps", "3000",
+          "--finetune-steps", "10000", "--study", "s"], "learning_starts 5000 is not below the pre-training's 3000 steps"),
+        ([*STUDY, "--learning-starts", "99999999"], "learning_starts 99999999 is not below the fine-tuning's 100000 steps"),
+        # a bad hyperparameter reaches the constructor, which refuses it before building anything
+        (["train", "--algo", "cic", "--env", "URLB/walker-v0", "--small", "-params", "batch_size:0"],
+         "batch_size must be an int >= 1, got 0"),
+        (["train", "--algo", "cic", "--env", "URLB/walker-v0", "--small", "-params", "temperature:0"],
+         "temperature must be a finite number > 0, got 0"),
+        # abbreviated options are not options
+        (["protocol", "--smal", "--study", "s"], "unrecognized arguments: --smal"),
+        (["train", "--algo", "cic", "--env", "URLB/walker-v0", "--smal"], "unrecognized arguments: --smal"),
+        (["train", "--algo", "cic", "--env", "URLB/walker-v0", "--n-timestep", "10"], "unrecognized arguments: --n-timestep"),
+        ([*STUDY, "--max-ret", "2"], "unrecognized arguments: --max-ret"),
+        (["report", "s", "--rep", "5"], "unrecognized arguments: --rep"),
+        (["skills", "x.zip", "--ste", "5"], "unrecognized arguments: --ste"),
+    ],
+)
+def test_bad_values_are_refused_before_anything_runs(arguments, message, workdir: Path, capsys: pytest.CaptureFixture):
+    line = _fails(arguments, capsys, workdir)
+    assert re.search(message, line), line
+
+
+def test_small_keeps_an_explicit_zero():
+    """``--learning-starts 0`` with ``--small`` is 0 (it was taken for "not given" and became 500)."""
+    args = protocol.build_parser().parse_args(["--small", "--learning-starts", "0"])
+    settings = protocol.settings_from_args(args)
+    assert settings.learning_starts == 0 and settings.batch_size == 32 and settings.hidden_dim == 32

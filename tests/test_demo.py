@@ -52,11 +52,18 @@ def test_demo_fine_tunes_beside_ddpg_and_writes_the_curves(tmp_path, capsys):
     assert f"{last[1]:7.1f}" in printed and not math.isnan(last[2])
 
 
-@pytest.mark.parametrize("argv", [["--steps", "1000", "--learning-starts", "4000"], ["--num-threads", "0"]])
-def test_demo_refuses_a_budget_shorter_than_its_random_steps_or_no_thread(tmp_path, capsys, argv):
+@pytest.mark.parametrize("argv, message", [
+    (["--steps", "1000", "--learning-starts", "4000"], "--steps 1000 must be above --learning-starts 4000"),
+    (["--num-threads", "0"], "argument --num-threads: must be an int >= 1, got '0'"),
+    (["--eval-episodes", "0"], "argument --eval-episodes: must be an int >= 1, got '0'"),
+    (["--hidden-dim", "-3"], "argument --hidden-dim: must be an int >= 1, got '-3'"),
+    (["--eval-ev", "100"], "unrecognized arguments: --eval-ev"),  # no abbreviated options
+])
+def test_demo_refuses_a_budget_shorter_than_its_random_steps_or_no_thread(tmp_path, capsys, argv, message):
     with pytest.raises(SystemExit):
         demo.main([*argv, "--out", str(tmp_path)])
-    assert "need --steps > --learning-starts" in capsys.readouterr().err
+    assert message in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_demo_on_quadruped_is_the_default(tmp_path, capsys):

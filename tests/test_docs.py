@@ -53,6 +53,22 @@ def test_the_quick_start_to_copy_is_cpu_sized(page):
     assert full and all('device="cuda"' in block for block in full), "URLB's full size is shown as the GPU line"
 
 
+@pytest.mark.parametrize("page", [README, ROOT / "docs" / "guide" / "quickstart.md"], ids=lambda p: p.name)
+def test_the_quick_start_sets_the_threads_its_times_are_for(page):
+    """The times beside the quick start are one-thread figures: the block to copy sets one thread."""
+    text = page.read_text()
+    first = _python_blocks(_section(text, "Quick start") if page == README else text)[0]
+    assert "torch.set_num_threads(1)" in first
+
+
+def test_no_page_promises_numbers_that_repeat_exactly():
+    """The demo's numbers repeat on one machine with the same versions, not on every machine."""
+    pages = [README, *sorted((ROOT / "docs").rglob("*.md"))]
+    for page in pages:
+        text = " ".join(page.read_text().split())
+        assert "repeat exactly" not in text, page
+
+
 def test_readme_states_no_unmeasured_gpu_estimate():
     """GPU times are the measured ones (docs/guide/speed.md), not an estimate beside them."""
     text = README.read_text() + (ROOT / "docs" / "guide" / "speed.md").read_text()

@@ -1,4 +1,7 @@
-"""A snapshot loaded onto the wrong env, class or skill size says what is wrong and what to do."""
+"""A snapshot loaded onto the wrong env, class or skill size, or a file that is no readable snapshot, says what is
+wrong and what to do."""
+
+import re
 
 import gymnasium as gym
 import numpy as np
@@ -90,3 +93,79 @@ def test_wrap_env_for_sb3_eval_callback(tmp_path, cic_snapshot, tiny):
     wrapped = model.wrap_env(gym.make("URLB/walker-flip-v0"))
     wrapped.reset(seed=0)
     assert np.array_equal(wrapped.get_skill(), model.finetune_skill) and wrapped.fixed
+
+
+def _bad_snapshots(folder, good):
+    """Damaged copies of the saved model ``good`` and a stock SB3 DDPG model, in ``folder``: ``{kind: path}``."""
+    import zipfile
+
+    from stable_baselines3 import DDPG
+
+    raw = good.read_bytes()
+    paths = {kind: folder / f"{kind}.zip" for kind in ("not_a_zip", "truncated", "bad_json", "garbage_policy", "sb3_ddpg")}
+    paths["not_a_zip"].write_bytes(b"this is no zip file")
+    paths["truncated"].write_bytes(raw[: len(raw) // 2])
+    with zipfile.ZipFile(good) as archive:
+        entries = {name: archive.read(name) for name in archive.namelist()}
+    for kind, name, content in (("bad_json", "data", b'{"policy_class": '), ("garbage_policy", "policy.pth", b"\x80garbage")):
+        with zipfile.ZipFile(paths[kind], "w") as archive:
+            for entry, data in entries.items():
+                archive.writestr(entry, content if entry == name else data)
+    DDPG("MlpPolicy", "Pendulum-v1", policy_kwargs={"net_arch": [8, 8]}, buffer_size=100).save(paths["sb3_ddpg"])
+    return paths
+
+
+#: what each damaged file is said to be
+UNREADABLE = {
+    "not_a_zip": "is not a readable zip file \\(File is not a zip file\\)",
+    "truncated": "(is not a readable zip file|holds no saved model data)",
+    "bad_json": "its 'data' entry is not valid JSON",
+    "garbage_policy": "its policy.pth entry holds no tensors torch reads safely",
+    "sb3_ddpg": "is not an sb3-cic model: its policy is stable_baselines3.td3.policies.TD3Policy",
+}
+
+
+@pytest.fixture
+def bad_snapshots(tmp_path, cic_snapshot):
+    folder = tmp_path / "bad"
+    folder.mkdir()
+    return _bad_snapshots(folder, cic_snapshot[1])
+
+
+@pytest.mark.parametrize("kind", sorted(UNREADABLE))
+@pytest.mark.parametrize("how", ["load", "load_pretrained"])
+def test_an_unreadable_snapshot_is_named_with_what_is_wrong(bad_snapshots, kind, how):
+    path = bad_snapshots[kind]
+    with pytest.raises(ValueError) as info:
+        if how == "load":
+            CIC.load(path)
+        else:
+            CIC.load_pretrained(path, "URLB/walker-flip-v0")
+    message = str(info.value)
+    assert str(path) in message and len(message.splitlines()) == 1
+    assert re.search(UNREADABLE[kind], message), message
+    # torch's advice to unpickle the file is nowhere in what the user sees, the chained errors included
+    chain, error = [], info.value
+    while error is not None:
+        chain.append(str(error))
+        error = None if error.__suppress_context__ else (error.__cause__ or error.__context__)
+    assert not any("weights_only" in text for text in chain), chain
+
+
+@pytest.mark.parametrize("kind", sorted(UNREADABLE))
+def test_an_unreadable_snapshot_on_the_command_line(bad_snapshots, kind, tmp_path, monkeypatch, capsys):
+    """``finetune`` reads the snapshot before rl-zoo makes its run folder; ``skills`` names the file."""
+    from sb3_cic.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    path = str(bad_snapshots[kind])
+    for arguments in (["finetune", "--algo", "cic", "--env", "URLB/walker-flip-v0", "-i", path, "-n", "100"],
+                      ["skills", path, "--no-video", "--plot", "p.png"]):
+        capsys.readouterr()
+        with pytest.raises(SystemExit) as exit_info:
+            main(arguments)
+        err = capsys.readouterr().err
+        assert exit_info.value.code == 2 and len(err.strip().splitlines()) == 1, err
+        assert path in err and re.search(UNREADABLE[kind], err), err
+        assert "weights_only" not in err and "Error: Error" not in err
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["bad", "cic.zip"]  # no logs/, no plot

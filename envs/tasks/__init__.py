@@ -5,10 +5,10 @@ Each loader is ``load(task, seed) -> dm_env.Environment``.
 
 from __future__ import annotations
 
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
-import dm_env
-from dm_control import suite
+if TYPE_CHECKING:  # dm_control loads when an env is made, not when the ids are registered
+    import dm_env
 
 #: task names of each URLB domain; the first one is the primal task the reward-free
 #: pre-training environment runs on. ``point_mass`` (a small test domain) and ``hopper`` (the CIC paper's
@@ -28,6 +28,8 @@ URLB_TASKS: tuple[str, ...] = tuple(
 
 
 def _suite(domain: str, task: str) -> Callable[[int | None], dm_env.Environment]:
+    from dm_control import suite
+
     return lambda seed: suite.load(domain, task, task_kwargs={"random": seed})
 
 

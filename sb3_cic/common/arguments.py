@@ -1,34 +1,198 @@
-"""Argument checks: a ``ValueError`` naming the argument, before anything is built."""
+"""Argument checks, the one place of every argument's range: a ``ValueError`` naming the argument in Python, an
+argparse error naming the option on the command line (one line, exit code 2), before anything is written, built
+or trained.
+
+:data:`RANGES` holds the range of each numeric argument by name, shared by the classes (:class:`~sb3_cic.ddpg.URLBDDPG`
+and the methods' reward-module arguments), the protocol's :class:`~sb3_cic.protocol.Settings` and the command lines
+(:mod:`sb3_cic.parsers`, through :func:`option_type`). This module imports nothing heavy (no torch, no gymnasium):
+the command line builds its parsers and prints ``--help`` with it alone.
+"""
 
 from __future__ import annotations
 
+import argparse
 import inspect
-from typing import Any
+import math
+import numbers
+from dataclasses import dataclass
+from typing import Any, Callable, Iterable
 
-import numpy as np
+#: the largest skill a method takes (``skill_dim``): the URLB methods use 4 to 64; a prior of thousands of
+#: dimensions makes every update slow (the skill is part of every network's input) and a grid sweep meaningless
+MAX_SKILL_DIM = 1024
 
-from sb3_cic.buffers import URLBReplayBuffer
+#: the largest seed (numpy's ``SeedSequence`` and Gymnasium take seeds in [0, 2**32 - 1])
+MAX_SEED = 2**32 - 1
 
-#: URLBDDPG's numeric arguments and their ranges: ``name: (low, high, low_open)``; ``batch_size`` is also at
-#: most ``buffer_size``, ``gradient_steps`` may be -1 (SB3: as many as env steps)
-RANGES: dict[str, tuple[float, float, bool]] = {
-    "learning_rate": (0.0, float("inf"), True),
-    "buffer_size": (1, float("inf"), False),
-    "batch_size": (1, float("inf"), False),
-    "learning_starts": (0, float("inf"), False),
-    "tau": (0.0, 1.0, False),
-    "gamma": (0.0, 1.0, False),
-    "gradient_steps": (0, float("inf"), False),
-    "train_freq": (1, float("inf"), False),
-    "n_steps": (1, float("inf"), False),
-    "exploration_std": (0.0, float("inf"), False),
-    "exploration_clip": (0.0, float("inf"), False),
-    "stats_window_size": (1, float("inf"), False),
+
+def _number(value: float) -> str:
+    return str(int(value)) if float(value).is_integer() else repr(value)
+
+
+@dataclass(frozen=True)
+class Range:
+    """The values an argument takes: an int (``integer``) or a finite real number in ``[low, high]`` (``low``
+    excluded with ``low_open``). A bool is neither; NaN and infinity are refused.
+
+    :param low: lower bound
+    :param high: upper bound (``inf``: none)
+    :param integer: whether the value must be an int (a Python or numpy integer)
+    :param low_open: exclude ``low`` itself
+    """
+
+    low: float
+    high: float = math.inf
+    integer: bool = False
+    low_open: bool = False
+
+    def describe(self) -> str:
+        """``"an int >= 1"``, ``"a finite number > 0"``, ``"a finite number in [0, 1]"``..."""
+        kind = "an int" if self.integer else "a finite number"
+        if math.isfinite(self.high):
+            return f"{kind} in {'(' if self.low_open else '['}{_number(self.low)}, {_number(self.high)}]"
+        return f"{kind} {'>' if self.low_open else '>='} {_number(self.low)}"
+
+    def accepts(self, value: Any) -> bool:
+        """Whether ``value`` is of the range's type and within it.
+
+        :param value: the value given
+        """
+        if isinstance(value, bool) or not isinstance(value, numbers.Integral if self.integer else numbers.Real):
+            return False
+        if not math.isfinite(value):
+            return False
+        return (value > self.low if self.low_open else value >= self.low) and value <= self.high
+
+    def check(self, name: str, value: Any) -> Any:
+        """Return ``value``, or raise a ``ValueError`` naming ``name`` when it is not in the range.
+
+        :param name: argument name for the message
+        :param value: the value given
+        """
+        if not self.accepts(value):
+            raise ValueError(f"{name} must be {self.describe()}, got {value!r}")
+        return value
+
+    def parse(self, text: str) -> int | float:
+        """An argparse ``type``: ``text`` as a number in the range, else ``argparse.ArgumentTypeError`` (argparse
+        then names the option: ``argument --batch-size: must be an int >= 1, got '0'``).
+
+        :param text: the command-line value
+        """
+        try:
+            value: int | float = int(text) if self.integer else float(text)
+        except ValueError:
+            value = math.nan
+        if not self.accepts(value):
+            raise argparse.ArgumentTypeError(f"must be {self.describe()}, got {text!r}")
+        return value
+
+
+POSITIVE_INT = Range(1, integer=True)
+NON_NEGATIVE_INT = Range(0, integer=True)
+POSITIVE = Range(0.0, low_open=True)
+NON_NEGATIVE = Range(0.0)
+FRACTION = Range(0.0, 1.0)
+SEED = Range(0, MAX_SEED, integer=True)
+
+#: the range of every numeric argument, by name: :class:`~sb3_cic.ddpg.URLBDDPG`'s (``learning_rate`` may also be a
+#: schedule, ``gradient_steps`` -1, ``train_freq`` a ``(frequency, unit)`` tuple, ``batch_size`` is at most
+#: ``buffer_size``), the policy's, the methods' reward-module and skill-prior parameters (checked under the method's
+#: argument name, e.g. ``cic_hidden_dim`` for ``hidden_dim``), the protocol's :class:`~sb3_cic.protocol.Settings`
+#: and the command-line options (``--max-retries``, ``--reps``...)
+RANGES: dict[str, Range] = {
+    # URLBDDPG
+    "learning_rate": POSITIVE,
+    "buffer_size": POSITIVE_INT,
+    "batch_size": POSITIVE_INT,
+    "learning_starts": NON_NEGATIVE_INT,
+    "tau": FRACTION,
+    "gamma": FRACTION,
+    "gradient_steps": NON_NEGATIVE_INT,
+    "train_freq": POSITIVE_INT,
+    "n_steps": POSITIVE_INT,
+    "exploration_std": NON_NEGATIVE,
+    "exploration_clip": NON_NEGATIVE,
+    "stats_window_size": POSITIVE_INT,
+    "skill_dim": Range(1, MAX_SKILL_DIM, integer=True),
+    "sf_dim": Range(1, MAX_SKILL_DIM, integer=True),  # APS's skill_dim
+    "regression_step": NON_NEGATIVE_INT,  # APS's fine-tuning
+    "regression_max_samples": POSITIVE_INT,
+    "skill_resample_every": POSITIVE_INT,
+    "verbose": Range(0, 2, integer=True),
+    "seed": SEED,
+    # policy
+    "hidden_dim": POSITIVE_INT,
+    "n_critics": POSITIVE_INT,
+    # reward modules and skill priors (their parameter names)
+    "embed_dim": POSITIVE_INT,
+    "rep_dim": POSITIVE_INT,
+    "vae_hidden_dim": POSITIVE_INT,
+    "code_dim": POSITIVE_INT,
+    "pred_dim": POSITIVE_INT,
+    "proj_dim": POSITIVE_INT,
+    "num_protos": POSITIVE_INT,
+    "queue_size": POSITIVE_INT,
+    "topk": POSITIVE_INT,
+    "knn_k": POSITIVE_INT,
+    "n_models": POSITIVE_INT,
+    "sinkhorn_iters": POSITIVE_INT,
+    "lr": POSITIVE,
+    "vae_lr": POSITIVE,
+    "disc_lr": POSITIVE,
+    "temperature": POSITIVE,
+    "knn_clip": NON_NEGATIVE,
+    "scale": NON_NEGATIVE,
+    "vae_beta": NON_NEGATIVE,
+    "target_tau": FRACTION,
+    "partitions": POSITIVE,
+    "episode_length": POSITIVE_INT,
+    # the protocol's settings
+    "pretrain_steps": POSITIVE_INT,
+    "finetune_steps": POSITIVE_INT,
+    "eval_freq": POSITIVE_INT,
+    "eval_episodes": POSITIVE_INT,
+    "snapshots": POSITIVE_INT,
+    "num_threads": POSITIVE_INT,
+    "pretrain_checkpoint_every": NON_NEGATIVE_INT,
+    "finetune_checkpoint_every": NON_NEGATIVE_INT,
+    # command-line options
+    "checkpoint_every": NON_NEGATIVE_INT,
+    "pretrain_seed": SEED,
+    "seeds": SEED,
+    "snapshot": POSITIVE_INT,
+    "from_snapshot": POSITIVE_INT,
+    "workers": POSITIVE_INT,
+    "cpus_per_run": POSITIVE,
+    "gpus_per_run": NON_NEGATIVE,
+    "max_retries": NON_NEGATIVE_INT,
+    "reps": POSITIVE_INT,
+    "n_timesteps": POSITIVE_INT,
+    "n_eval_envs": POSITIVE_INT,
+    "n_envs": POSITIVE_INT,
+    "exp_id": Range(-1, integer=True),
+    "save_freq": POSITIVE_INT,
+    "log_interval": POSITIVE_INT,
+    "n_skills": POSITIVE_INT,
+    "video_skills": NON_NEGATIVE_INT,
+    "steps": POSITIVE_INT,
+    "tile_size": Range(16, 1024, integer=True),
 }
 
+#: the arguments that are flags (a bool, not a number that happens to be true; None: the default of an optional one)
+FLAGS: frozenset[str] = frozenset({"knn_avg", "knn_rms", "minus_mean", "reward_free"})
 
-def check_range(name: str, value: Any, low: float, high: float = float("inf"), low_open: bool = False) -> None:
-    """Raise a ``ValueError`` naming ``name`` unless ``low <= value <= high`` (``low < value`` with ``low_open``).
+#: URLBDDPG's numeric arguments (checked by :func:`check_ddpg_arguments`)
+DDPG_ARGUMENTS: tuple[str, ...] = (
+    "learning_rate", "buffer_size", "batch_size", "learning_starts", "tau", "gamma", "gradient_steps", "train_freq",
+    "n_steps", "exploration_std", "exploration_clip", "stats_window_size", "skill_dim", "skill_resample_every",
+    "verbose", "seed", "reward_free",
+)
+
+
+def check_range(name: str, value: Any, low: float, high: float = math.inf, low_open: bool = False) -> None:
+    """Raise a ``ValueError`` naming ``name`` unless ``value`` is a finite number with ``low <= value <= high``
+    (``low < value`` with ``low_open``).
 
     :param name: argument name for the message
     :param value: the value given
@@ -36,10 +200,7 @@ def check_range(name: str, value: Any, low: float, high: float = float("inf"), l
     :param high: upper bound
     :param low_open: exclude ``low`` itself
     """
-    number = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool) and not np.isnan(value)
-    if not number or not (value > low if low_open else value >= low) or value > high:
-        bounds = f"{'(' if low_open else '['}{low}, {high}]" if np.isfinite(high) else f"{'>' if low_open else '>='} {low}"
-        raise ValueError(f"{name} must be {'in ' if np.isfinite(high) else ''}{bounds}, got {value!r}")
+    Range(low, high, low_open=low_open).check(name, value)
 
 
 def check_positive_int(name: str, value: int) -> int:
@@ -48,27 +209,46 @@ def check_positive_int(name: str, value: int) -> int:
     :param name: argument name for the message
     :param value: the value given
     """
-    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-        raise ValueError(f"{name} must be an int >= 1, got {value!r}")
+    return POSITIVE_INT.check(name, value)
+
+
+def check_argument(name: str, value: Any, key: str | None = None) -> Any:
+    """Return ``value``, or a ``ValueError`` naming ``name`` when it is outside the range of :data:`RANGES` (or not
+    a bool for a name of :data:`FLAGS`); a name neither knows is not checked.
+
+    :param name: the argument's name for the message
+    :param value: the value given
+    :param key: the name in :data:`RANGES` (default: ``name``; a method argument gives its module parameter's)
+    """
+    key = name if key is None else key
+    if key in FLAGS and not isinstance(value, bool):
+        raise ValueError(f"{name} must be True or False, got {value!r}")
+    if key in RANGES:
+        RANGES[key].check(name, value)
     return value
 
 
-def check_ranges(args: dict[str, Any]) -> None:
-    """Check the arguments of :data:`RANGES` found in ``args`` (a constructor's ``locals()``).
+def check_ranges(args: dict[str, Any], names: Iterable[str] | None = None) -> None:
+    """Check the arguments ``names`` found in ``args`` (a constructor's ``locals()``, or a subset); None is the
+    default of an optional argument and is not checked.
 
     :param args: argument values by name
+    :param names: the names to check (default: those of ``args`` that :data:`RANGES` or :data:`FLAGS` know)
     """
-    for name, (low, high, low_open) in RANGES.items():
-        value = args[name]
+    for name in names if names is not None else [name for name in args if name in RANGES or name in FLAGS]:
+        value = args.get(name)
+        if value is None:
+            continue
         if name == "learning_rate" and callable(value):  # a schedule
             continue
-        if name == "gradient_steps" and value == -1:
+        if name == "gradient_steps" and not isinstance(value, bool) and value == -1:  # SB3: as many as env steps
             continue
         if name == "train_freq" and isinstance(value, tuple):  # (frequency, unit)
             value = value[0]
-        if name == "batch_size":
-            high = args["buffer_size"]
-        check_range(name, value, low, high, low_open)
+        check_argument(name, value)
+    batch_size, buffer_size = args.get("batch_size"), args.get("buffer_size")
+    if batch_size is not None and buffer_size is not None and batch_size > buffer_size:
+        raise ValueError(f"batch_size must be at most buffer_size ({buffer_size}), got {batch_size!r}")
 
 
 def parameter_default(func: Any, name: str) -> Any:
@@ -89,6 +269,8 @@ def check_ddpg_arguments(args: dict[str, Any]) -> None:
 
     :param args: the constructor's arguments by name (its ``locals()``)
     """
+    from sb3_cic.buffers import URLBReplayBuffer
+
     if args["optimize_memory_usage"]:
         raise ValueError(
             "optimize_memory_usage is not supported: URLB's n-step replay buffer keeps next observations; "
@@ -101,4 +283,44 @@ def check_ddpg_arguments(args: dict[str, Any]) -> None:
             f"observations, intrinsic-reward relabelling), got {buffer_class!r}; HerReplayBuffer needs goal-conditioned "
             "Dict observations, which URLB agents do not take"
         )
-    check_ranges(args)
+    check_ranges(args, DDPG_ARGUMENTS)
+
+
+# the command line ---------------------------------------------------------------------------------
+def option_type(name: str) -> Callable[[str], int | float]:
+    """The argparse ``type`` of an option whose value has the range of ``name`` in :data:`RANGES`.
+
+    :param name: the name in :data:`RANGES` (``"eval_episodes"`` for ``--eval-episodes``)
+    """
+    parse = RANGES[name].parse
+    kind = "int" if RANGES[name].integer else "float"
+
+    def convert(text: str) -> int | float:
+        return parse(text)
+
+    convert.__name__ = kind  # what argparse would name the type in an error of its own
+    return convert
+
+
+class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """argparse's help with each option's default after its help text, unless the text already says it
+    ("default") or there is none to show (a flag, a default of None: the text says what holds instead)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        nothing = action.default is None or action.default is False or action.default is argparse.SUPPRESS
+        if "default" in text or nothing or action.default == [] or not action.option_strings:
+            return text
+        return super()._get_help_string(action) or text
+
+
+def argument_parser(prog: str, description: str, **kwargs: Any) -> argparse.ArgumentParser:
+    """A parser of the command line: no abbreviated options (``--smal`` is not ``--small``), each option's
+    default in ``--help`` (:class:`HelpFormatter`).
+
+    :param prog: the command (``"sb3-cic protocol"``)
+    :param description: what it does, as plain text
+    :param kwargs: further ``argparse.ArgumentParser`` arguments
+    """
+    kwargs.setdefault("formatter_class", HelpFormatter)
+    return argparse.ArgumentParser(prog=prog, description=description, allow_abbrev=False, **kwargs)

@@ -11,7 +11,7 @@ from typing import Any, ClassVar
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.type_aliases import GymEnv
 
-from sb3_cic.common.arguments import check_positive_int, parameter_default
+from sb3_cic.common.arguments import check_argument, parameter_default
 from sb3_cic.common.env_util import env_id_of, is_reward_free_env
 from sb3_cic.rewards.base import RewardModule
 from sb3_cic.skills import SkillPrior
@@ -81,7 +81,8 @@ class MethodMixin:
     def _set_method_args(self, method_kwargs: dict[str, Any]) -> None:
         """Set the method's reward-module and skill-prior arguments (:attr:`reward_module_args`,
         :attr:`skill_prior_args`) as attributes, their defaults the module's or the prior's; ``TypeError`` for an
-        argument the method does not take.
+        argument the method does not take, ``ValueError`` naming one out of its range
+        (:data:`~sb3_cic.common.arguments.RANGES` of its module parameter).
 
         :param method_kwargs: the constructor's extra keyword arguments
         """
@@ -92,13 +93,14 @@ class MethodMixin:
             value = method_kwargs.get(name)
             if value is None and parameter != "hidden_dim":
                 value = parameter_default(self.reward_module_class, parameter)
-            if parameter.endswith("hidden_dim") and value is not None:
-                check_positive_int(name, value)
+            if value is not None:  # None: the module's own default (a width: the policy's)
+                check_argument(name, value, key=parameter)
             setattr(self, name, value)
         for name, parameter in self.skill_prior_args.items():
             if name not in self.reward_module_args:
                 value = method_kwargs.get(name)
-                setattr(self, name, parameter_default(self.skill_prior_class, parameter) if value is None else value)
+                value = parameter_default(self.skill_prior_class, parameter) if value is None else value
+                setattr(self, name, check_argument(name, value, key=parameter))
 
     def _make_skill_prior(self, skill_prior: SkillPrior | None, skill_dim: int | None) -> SkillPrior | None:
         """The given prior, else the method's :attr:`skill_prior_class` (of size ``skill_dim``, default its own) with

@@ -2,14 +2,18 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 import tempfile
+import warnings
 import zipfile
+import zlib
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import numpy as np
+import torch as th
 from stable_baselines3.common.save_util import json_to_data, open_path
 from stable_baselines3.common.type_aliases import GymEnv
 
@@ -18,26 +22,92 @@ from sb3_cic.skills import SkillPrior
 from sb3_cic.version import __version__
 
 
-def read_saved_data(path: Any, custom_objects: dict[str, Any] | None = None) -> dict[str, Any]:
-    """The saved attributes of a model file (its ``data`` entry only; the networks are not read).
+#: what reading a damaged zip file raises (a truncated download, a file cut short by a full disk...)
+DAMAGED_ZIP: tuple[type[Exception], ...] = (zipfile.BadZipFile, EOFError, zlib.error)
 
-    :param path: a path (``.zip`` added when missing, as SB3's ``load``) or a file object (left at its position)
-    :param custom_objects: see SB3's ``load``
-    """
+
+@contextlib.contextmanager
+def quiet_tensor_reads() -> Iterator[None]:
+    """Within the block, torch's warning about the pickle protocol of a damaged tensor entry is not shown (the
+    entry is reported as unreadable instead, :func:`check_tensors`)."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="Detected pickle protocol")
+        yield
+
+
+def _damaged(path: Any, error: BaseException) -> ValueError:
+    return ValueError(f"{path} is not a readable zip file ({error}): a damaged or truncated file, not a saved model")
+
+
+@contextlib.contextmanager
+def _archive(path: Any) -> Iterator[zipfile.ZipFile]:
+    """The zip archive of a saved model (``.zip`` added when missing, as SB3's ``load``); a file object is left at
+    its position; a damaged zip is a ``ValueError`` naming the file."""
     file = open_path(path, "r", suffix="zip")
     start = file.tell()
     try:
         with zipfile.ZipFile(file) as archive:
-            if "data" not in archive.namelist():
-                raise ValueError(f"{path} holds no saved model data")
-            return json_to_data(archive.read("data").decode(), custom_objects=custom_objects)
-    except zipfile.BadZipFile as error:
-        raise ValueError(f"Error: the file {path} wasn't a zip-file") from error
+            yield archive
+    except DAMAGED_ZIP as error:
+        raise _damaged(path, error) from None
     finally:
         if file is path:
             file.seek(start)
         else:
             file.close()
+
+
+def read_saved_data(path: Any, custom_objects: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The saved attributes of a model file (its ``data`` entry only; the networks are not read); a file that is no
+    saved model (not a zip, no ``data`` entry, bad JSON) is a ``ValueError`` naming it and what is wrong.
+
+    :param path: a path (``.zip`` added when missing, as SB3's ``load``) or a file object (left at its position)
+    :param custom_objects: see SB3's ``load``
+    """
+    with _archive(path) as archive:
+        if "data" not in archive.namelist():
+            raise ValueError(f"{path} holds no saved model data (no 'data' entry): not a saved model")
+        raw = archive.read("data")
+    try:
+        return json_to_data(raw.decode(), custom_objects=custom_objects)
+    except ValueError as error:  # JSONDecodeError, UnicodeDecodeError
+        raise ValueError(f"{path} is not a readable saved model: its 'data' entry is not valid JSON ({error})") from None
+
+
+def check_tensors(path: Any) -> None:
+    """``ValueError`` naming the first tensor entry (``policy.pth``...) of a saved model that torch cannot read with
+    ``weights_only=True``. torch's own message is not passed on: it suggests ``weights_only=False``, which runs any
+    code a file from elsewhere holds.
+
+    :param path: a path or a file object (left at its position)
+    """
+    with _archive(path) as archive:
+        for name in archive.namelist():
+            if not name.endswith(".pth"):
+                continue
+            try:
+                with archive.open(name) as entry, quiet_tensor_reads():
+                    th.load(entry, map_location="cpu", weights_only=True)
+            except DAMAGED_ZIP as error:
+                raise _damaged(path, error) from None
+            except Exception as error:  # noqa: BLE001  (whatever torch raises: the file is no saved tensors)
+                raise ValueError(
+                    f"{path} is not a readable saved model: its {name} entry holds no tensors torch reads safely "
+                    f"({type(error).__name__}); the file is damaged or not a saved model"
+                ) from None
+
+
+def check_saved_model(path: Any, custom_objects: dict[str, Any] | None = None) -> SavedModel:
+    """Read a saved model's attributes and tensors without building it: a ``ValueError`` naming the file and what is
+    wrong for a damaged file, another library's model (:class:`SavedModel`) or unreadable tensors
+    (:func:`check_tensors`); the model's :class:`SavedModel` otherwise.
+
+    :param path: a path or a file object
+    :param custom_objects: see SB3's ``load``
+    """
+    saved = SavedModel(read_saved_data(path, custom_objects), source=path)
+    check_tensors(path)
+    return saved
 
 
 def is_optimizer_state(name: str) -> bool:
@@ -76,16 +146,30 @@ def package_version() -> str:
 class SavedModel:
     """What :meth:`~sb3_cic.ddpg.URLBDDPG.load` reads of a saved model before loading it, to explain a mistake.
 
+    A model of another library (a stock SB3 ``DDPG``, whose policy is not one of sb3-cic's) or without the
+    attributes of a saved model is a ``ValueError`` naming ``source``.
+
     :param data: the saved attributes (:func:`read_saved_data`)
+    :param source: the file, for the messages
     """
 
-    def __init__(self, data: dict[str, Any]) -> None:
+    def __init__(self, data: dict[str, Any], source: Any = "the file") -> None:
         self.data = data
+        policy = data.get("policy_class")
+        if isinstance(policy, type) and not policy.__module__.startswith("sb3_cic."):
+            raise ValueError(
+                f"{source} is not an sb3-cic model: its policy is {policy.__module__}.{policy.__qualname__} (a model of "
+                "another library, e.g. stock SB3); sb3-cic loads the models its own classes saved (URLBDDPG, CIC...)"
+            )
+        try:
+            self.obs_dim = int(data["observation_space"].shape[0])
+            self.action_shape = tuple(data["action_space"].shape)
+        except (KeyError, AttributeError, TypeError, IndexError) as error:
+            raise ValueError(f"{source} is not a saved sb3-cic model: no readable observation and action spaces "
+                             f"({type(error).__name__}: {error})") from None
         self.algorithm: str | None = data.get("algorithm")
         self.prior: SkillPrior | None = data.get("skill_prior")
         self.skill_dim = 0 if self.prior is None else self.prior.dim
-        self.obs_dim = int(data["observation_space"].shape[0])
-        self.action_shape = tuple(data["action_space"].shape)
 
     def describe(self) -> str:
         """``"the snapshot (CIC, pre-trained on URLB/walker-v0: state 24 + skill 64, action 6)"``."""

@@ -11,6 +11,7 @@ from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv
 
 from sb3_cic.callbacks import SkillSelectionCallback
+from sb3_cic.common.arguments import check_ranges
 from sb3_cic.ddpg import URLBDDPG
 from sb3_cic.policies import URLBCritic, URLBPolicy
 from sb3_cic.rewards.aps import APSReward
@@ -180,6 +181,7 @@ class APS(URLBDDPG):
     ) -> None:
         if isinstance(policy, type) and not issubclass(policy, APSPolicy):
             raise ValueError(f"APS needs an APSPolicy (successor-feature critic), got {policy.__name__}")
+        check_ranges({"sf_dim": sf_dim, "regression_step": regression_step, "regression_max_samples": regression_max_samples})
         self.regression_step = regression_step
         self.regression_max_samples = regression_max_samples
         super().__init__(policy, env, skill_dim=sf_dim, skill_resample_every=skill_resample_every, **kwargs)

@@ -5,31 +5,35 @@ from __future__ import annotations
 import argparse
 from typing import Sequence
 
-from sb3_cic.protocol import add_settings_arguments, settings_from_args
+from sb3_cic.common.arguments import argument_parser, option_type
+from sb3_cic.parsers import add_settings_arguments
 
 
 def build_parser() -> argparse.ArgumentParser:
     """Arguments of ``sb3-cic study``."""
-    parser = argparse.ArgumentParser(
-        prog="sb3-cic study",
-        description="The URLB study on Ray: pre-train each method on each domain, fine-tune on the tasks x seeds; "
+    parser = argument_parser(
+        "sb3-cic study",
+        "The URLB study on Ray: pre-train each method on each domain, fine-tune on the tasks x seeds; "
         "each run a Ray task, resumed from its last checkpoint when started again.",
     )
     parser.add_argument("study", help="study folder (on a cluster: storage every node sees)")
-    parser.add_argument("--methods", nargs="+", default=["all"], help="cic apt ... ddpg, or all (default)")
-    parser.add_argument("--domains", nargs="+", default=["all"], help="walker quadruped jaco, or all (default)")
+    parser.add_argument("--methods", nargs="+", default=["all"], help="cic apt ... ddpg, or all")
+    parser.add_argument("--domains", nargs="+", default=["all"], help="walker quadruped jaco, or all")
     parser.add_argument("--tasks", nargs="+", default=None, help="tasks (flip or walker_flip; default: each domain's)")
-    parser.add_argument("--seeds", nargs="+", type=int, default=list(range(10)), help="fine-tuning seeds (default 0..9)")
-    parser.add_argument("--pretrain-seed", type=int, default=0)
-    parser.add_argument("--from-snapshot", type=int, default=None, metavar="STEP",
+    parser.add_argument("--seeds", nargs="+", type=option_type("seeds"), default=list(range(10)), help="fine-tuning seeds")
+    parser.add_argument("--pretrain-seed", type=option_type("pretrain_seed"), default=0, help="pre-training seed")
+    parser.add_argument("--from-snapshot", type=option_type("from_snapshot"), default=None, metavar="STEP",
                         help="fine-tune from the snapshot at this pre-training step (one of --snapshots; default: "
                         "the final one); the runs are <method>@STEP")
     add_settings_arguments(parser)
-    parser.add_argument("--address", default=None, help="join a running Ray cluster (auto, ray://host:10001...)")
-    parser.add_argument("--workers", type=int, default=1, help="runs at a time of the local Ray instance (no --address)")
-    parser.add_argument("--cpus-per-run", type=float, default=1)
-    parser.add_argument("--gpus-per-run", type=float, default=0, help="e.g. 0.25: four runs per GPU")
-    parser.add_argument("--max-retries", type=int, default=3, help="restarts of a run whose worker died")
+    parser.add_argument("--address", default=None,
+                        help="join a running Ray cluster (auto, ray://host:10001...; default: start a local one)")
+    parser.add_argument("--workers", type=option_type("workers"), default=1,
+                        help="runs at a time of the local Ray instance (no --address)")
+    parser.add_argument("--cpus-per-run", type=option_type("cpus_per_run"), default=1, help="CPUs Ray gives each run")
+    parser.add_argument("--gpus-per-run", type=option_type("gpus_per_run"), default=0, help="e.g. 0.25: four runs per GPU")
+    parser.add_argument("--max-retries", type=option_type("max_retries"), default=3,
+                        help="restarts of a run whose worker died (0: none; no unlimited retries)")
     return parser
 
 
@@ -39,10 +43,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     Bad input is a ``ValueError`` before anything is written or run (:func:`~sb3_cic.study.engine.run_study`);
     :func:`sb3_cic.cli.main` reports it in one line.
     """
+    args = build_parser().parse_args(argv)
+    from sb3_cic.protocol import settings_from_args
     from sb3_cic.study.engine import run_study
     from sb3_cic.study.graph import status_report
 
-    args = build_parser().parse_args(argv)
     settings = settings_from_args(args)
     runs, statuses = run_study(
         args.study, args.methods, args.domains, args.tasks, args.seeds, settings,
@@ -59,11 +64,11 @@ def main(argv: Sequence[str] | None = None) -> int:
 def status_main(argv: Sequence[str] | None = None) -> int:
     """``sb3-cic status STUDY``; returns the exit code: 0 when every run of the study is done (a ``ValueError`` if
     the folder is no study)."""
-    from sb3_cic.study.graph import status_report
-
-    parser = argparse.ArgumentParser(prog="sb3-cic status", description="Runs done / running / failed / pending of a study.")
+    parser = argument_parser("sb3-cic status", "Runs done / running / failed / pending of a study.")
     parser.add_argument("study", help="study folder")
     args = parser.parse_args(argv)
+    from sb3_cic.study.graph import status_report
+
     report, finished = status_report(args.study)
     print(report)
     return 0 if finished else 1

@@ -18,6 +18,7 @@ from typing import Any, Sequence
 from tqdm.auto import tqdm
 
 from sb3_cic import protocol
+from sb3_cic.common.arguments import check_argument
 from sb3_cic.protocol import Settings, check_study_settings, record_study_settings
 from sb3_cic.study.checkpoint import RunFolder
 from sb3_cic.study.graph import Run, build_graph, check_study, record_runs, settings_use
@@ -179,12 +180,12 @@ def run_study(
         raise ValueError(f"workers must be an int >= 1, got {workers!r}")
     if not cpus_per_run > 0 or not gpus_per_run >= 0:
         raise ValueError(f"cpus_per_run must be > 0 and gpus_per_run >= 0, got {cpus_per_run!r} and {gpus_per_run!r}")
-    if not isinstance(max_retries, int) or max_retries < -1:
-        raise ValueError(f"max_retries must be an int >= -1 (-1: no limit), got {max_retries!r}")
+    check_argument("max_retries", max_retries)  # no -1 (Ray's "no limit"): a run that kills its worker would never end
     if from_snapshot is not None and (from_snapshot not in settings.snapshots or from_snapshot == settings.pretrain_steps):
         raise ValueError(f"fine-tuning from the snapshot at {from_snapshot} steps needs it among the intermediate "
                          f"snapshots (--snapshots {' '.join(map(str, settings.snapshots))}); the final one is the default")
     runs = build_graph(methods, domains, tasks, seeds, pretrain_seed, from_snapshot)
+    protocol.check_learning_starts(runs, settings)
     check_study_settings(study, settings, pretrain_seed, **settings_use(runs))
     todo = check_study(study, runs, pretrain_seed)
     record_study_settings(study, settings, pretrain_seed, **settings_use(runs))
