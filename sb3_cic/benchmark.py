@@ -21,7 +21,6 @@ the aggregates are then points, and the report says so.
 
 from __future__ import annotations
 
-import argparse
 import json
 from collections import defaultdict
 from pathlib import Path
@@ -29,6 +28,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from sb3_cic.common.arguments import argument_parser, option_type
 from sb3_cic.constants import EXPERT_SCORES, PUBLISHED_AGGREGATES, PUBLISHED_RETURNS
 from sb3_cic.evaluation import METRICS, _fmt, aggregate_scores, load_results, plot_aggregates, score_matrices
 
@@ -315,24 +315,20 @@ def write_benchmark_report(
 
 def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     """``sb3-cic benchmark-report <study> [<study> ...] --out <folder>``."""
-    parser = argparse.ArgumentParser(
-        prog="sb3-cic benchmark-report",
-        description="URLB over the 12 tasks: the results of several study folders (made by sb3-cic study or "
-        "sb3-cic protocol) beside the CIC paper's Tables 5 and 6.",
-        allow_abbrev=False,
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    parser = argument_parser(
+        "sb3-cic benchmark-report",
+        "URLB over the 12 tasks: the results of several study folders (written by sb3-cic study or sb3-cic protocol) "
+        "beside the CIC paper's Tables 5 and 6.",
     )
     parser.add_argument("studies", nargs="+", help="study folders")
     parser.add_argument("--out", required=True, help="output folder for report.md, report.json and aggregates.png")
-    parser.add_argument("--seeds", type=int, nargs="+", default=None, help="fine-tuning seeds to keep (default: all)")
-    parser.add_argument("--reps", type=int, default=2000, help="bootstrap replications")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the bootstrap and the permutations")
+    parser.add_argument("--seeds", type=option_type("seeds"), nargs="+", default=None, help="fine-tuning seeds to keep (default: all)")
+    parser.add_argument("--reps", type=option_type("reps"), default=2000, help="bootstrap replications")
+    parser.add_argument("--seed", type=option_type("seed"), default=0, help="seed of the bootstrap and the permutations")
     args = parser.parse_args(argv)
     for study in args.studies:
         if not Path(study).is_dir():
             parser.error(f"no such study folder: {study}")
-    if args.reps < 1:
-        parser.error(f"--reps must be >= 1, got {args.reps}")
     try:
         report = write_benchmark_report(args.studies, args.out, seeds=args.seeds, reps=args.reps, seed=args.seed)
     except ValueError as error:

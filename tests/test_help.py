@@ -15,7 +15,9 @@ import pytest
 from sb3_cic.cli import main
 
 ROOT = Path(__file__).resolve().parent.parent
-COMMANDS = ["train", "finetune", "enjoy", "record-video", "protocol", "study", "status", "report", "skills"]
+COMMANDS = [
+    "train", "finetune", "enjoy", "record-video", "protocol", "study", "status", "report", "benchmark-report", "skills"
+]
 #: what a help text must not load
 HEAVY = ("torch", "ray", "stable_baselines3", "rl_zoo3", "dm_control")
 #: reStructuredText / Sphinx markup that must not reach a help text
