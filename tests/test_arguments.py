@@ -6,11 +6,11 @@ import math
 import numpy as np
 import pytest
 
-from sb3_cic import APS, APT, CIC, DIAYN, ICM, MOSS, RND, SMM, Disagreement, ProtoRL, URLBDDPG, UniformSkillPrior
+from sb3_cic import APS, APT, CIC, DIAYN, ICM, MOSS, RND, SMM, Disagreement, Fixed, ProtoRL, URLBDDPG, UniformSkillPrior
 from sb3_cic.common.arguments import DDPG_ARGUMENTS, FLAGS, MAX_SKILL_DIM, RANGES, Range, check_argument
 from sb3_cic.protocol import Settings
 
-ALL = [URLBDDPG, CIC, ICM, Disagreement, RND, APT, ProtoRL, DIAYN, SMM, APS, MOSS]
+ALL = [URLBDDPG, CIC, ICM, Disagreement, RND, APT, ProtoRL, DIAYN, SMM, APS, MOSS, Fixed]
 SKILLED = [CIC, DIAYN, SMM, APS, MOSS]
 SMALL = dict(policy_kwargs={"hidden_dim": 16}, batch_size=16, buffer_size=1000, learning_starts=20, seed=0)
 

@@ -48,6 +48,8 @@ class Range:
     def describe(self) -> str:
         """``"an int >= 1"``, ``"a finite number > 0"``, ``"a finite number in [0, 1]"``..."""
         kind = "an int" if self.integer else "a finite number"
+        if not math.isfinite(self.low) and not math.isfinite(self.high):
+            return kind
         if math.isfinite(self.high):
             return f"{kind} in {'(' if self.low_open else '['}{_number(self.low)}, {_number(self.high)}]"
         return f"{kind} {'>' if self.low_open else '>='} {_number(self.low)}"
@@ -147,6 +149,7 @@ RANGES: dict[str, Range] = {
     "target_tau": FRACTION,
     "partitions": POSITIVE,
     "episode_length": POSITIVE_INT,
+    "value": Range(-math.inf),  # Fixed's constant reward: any finite number
     # the protocol's settings
     "pretrain_steps": POSITIVE_INT,
     "finetune_steps": POSITIVE_INT,
