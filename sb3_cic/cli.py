@@ -52,7 +52,7 @@ USAGE = """usage: sb3-cic {train,finetune,enjoy,record-video,protocol,study,stat
 Run `sb3-cic <command> --help` for the options (train/finetune/enjoy show rl-zoo's)."""
 
 #: the errors that mean bad input: reported in one line with exit code 2 (other exceptions raise as they are)
-USER_ERRORS: tuple[type[BaseException], ...] = (ValueError, FileNotFoundError, gym.error.Error)
+USER_ERRORS: tuple[type[BaseException], ...] = (ValueError, FileNotFoundError, PermissionError, gym.error.Error)
 
 
 class UsageError(Exception):
