@@ -204,7 +204,8 @@ def rebuild_study_record(study: str | Path) -> dict[str, Any] | None:
 
     :param study: study folder
     """
-    folders = [f for f in run_folders(study) if any(f.iterdir())]
+    marks = (RUN_SETTINGS, "result.json", "checkpoint.zip", "progress.json")  # what a run writes, settings first
+    folders = [f for f in run_folders(study) if any((f / mark).exists() for mark in marks)]
     if not folders:
         return None
     data: dict[str, Any] = {"settings": {}, "conf_files": {}, "runs": []}
