@@ -60,7 +60,7 @@ Run `sb3-cic <command> --help` for the options of a command (train, finetune, en
 --zoo-help for rl-zoo's own)."""
 
 #: the errors that mean bad input: reported in one line with exit code 2 (other exceptions raise as they are)
-USER_ERRORS: tuple[type[BaseException], ...] = (ValueError, FileNotFoundError, gym.error.Error)
+USER_ERRORS: tuple[type[BaseException], ...] = (ValueError, FileNotFoundError, PermissionError, gym.error.Error)
 
 
 class UsageError(Exception):

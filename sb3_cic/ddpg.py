@@ -21,8 +21,7 @@ from sb3_cic.common.env_util import check_finite_step, env_id_of, prepare_env
 from sb3_cic.common.fast_update import UpdateMetrics, compiled_step
 from sb3_cic.common.method import MethodMixin
 from sb3_cic.common.rollout import LeanRolloutMixin
-from sb3_cic.common.save_util import SavedModel, check_tensors, is_optimizer_state, package_version, quiet_tensor_reads
-from sb3_cic.common.save_util import read_saved_data
+from sb3_cic.common.save_util import SaveLoadMixin, package_version
 from sb3_cic.common.skill_mixin import SkillMixin
 from sb3_cic.finetune import start_finetuning, with_finetune_callback
 from sb3_cic.policies import URLBPolicy, min_q, normalize_policy_kwargs
@@ -34,7 +33,7 @@ from sb3_cic.tensor_buffer import TensorReplayBuffer
 SelfURLBDDPG = TypeVar("SelfURLBDDPG", bound="URLBDDPG")
 
 
-class URLBDDPG(MethodMixin, SkillMixin, LeanRolloutMixin, DDPG):
+class URLBDDPG(MethodMixin, SkillMixin, LeanRolloutMixin, SaveLoadMixin, DDPG):
     """DDPG as in the Unsupervised RL Benchmark (Laskin et al., 2021), the base of every method here.
 
     Reference implementation: https://github.com/rll-research/url_benchmark (``agent/ddpg.py``).
@@ -343,62 +342,7 @@ class URLBDDPG(MethodMixin, SkillMixin, LeanRolloutMixin, DDPG):
             progress_bar=progress_bar,
         )
 
-    # save / load / fine-tune --------------------------------------------------------------------
-    def _excluded_save_params(self) -> list[str]:
-        excluded = ["reward_module", "_critic_params", "_critic_target_params", "_update_metrics", "_compiled_step"]
-        return [*super()._excluded_save_params(), *excluded]
-
-    def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
-        state_dicts, variables = super()._get_torch_save_params()
-        if self.reward_module is not None:
-            state_dicts += ["reward_module", "reward_module.optimizer"]
-        return state_dicts, variables
-
-    def set_parameters(self, load_path_or_dict: Any, exact_match: bool = True, device: th.device | str = "auto") -> None:
-        """SB3's; saved parameters without the optimisers' states (:func:`~sb3_cic.common.save_util.networks_only`)
-        leave the optimisers fresh."""
-        if exact_match and isinstance(load_path_or_dict, dict):
-            missing = set(self._get_torch_save_params()[0]) - set(load_path_or_dict)
-            networks = sorted(name for name in missing if not is_optimizer_state(name))
-            if networks:  # a RuntimeError, which load reports as a snapshot that does not fit
-                raise RuntimeError(f"the saved parameters lack {networks}")
-            exact_match = not missing
-        super().set_parameters(load_path_or_dict, exact_match=exact_match, device=device)
-
-    @classmethod
-    def load(  # type: ignore[override]
-        cls: type[SelfURLBDDPG],
-        path: Any,
-        env: GymEnv | str | None = None,
-        device: th.device | str = "auto",
-        custom_objects: dict[str, Any] | None = None,
-        print_system_info: bool = False,
-        force_reset: bool = True,
-        **kwargs: Any,
-    ) -> SelfURLBDDPG:
-        """Load a saved model (see SB3's ``load``); ``env`` may be an id and is wrapped with the saved skill prior.
-        A snapshot of another method or env is a ``ValueError`` that says so (:class:`~sb3_cic.common.save_util.SavedModel`).
-        """
-        if "policy_kwargs" in kwargs:  # compared with the saved ones, which are normalised
-            kwargs["policy_kwargs"] = normalize_policy_kwargs(kwargs["policy_kwargs"])
-        check_ranges(kwargs)
-        saved = SavedModel(read_saved_data(path, custom_objects), source=path)
-        env = saved.check(cls, env)
-        try:
-            with quiet_tensor_reads():
-                model = super().load(
-                    path, env=env, device=device, custom_objects=custom_objects,
-                    print_system_info=print_system_info, force_reset=force_reset, **kwargs,
-                )
-        except RuntimeError as error:  # the networks' state dicts do not fit this class's (or a damaged entry)
-            check_tensors(path)
-            raise ValueError(f"{saved.describe()} does not fit {cls.__name__}: {error}{saved.version_note()}") from error
-        except Exception:  # a damaged tensor entry: named, without torch's advice to unpickle it
-            check_tensors(path)
-            raise
-        model.package_version = package_version()  # what will save it next
-        return model  # type: ignore[return-value]
-
+    # fine-tune --------------------------------------------------------------------------------
     @classmethod
     def load_pretrained(
         cls: type[SelfURLBDDPG],

@@ -36,21 +36,131 @@ from sb3_cic.common.arguments import argument_parser, option_type
 METRICS: tuple[str, ...] = ("IQM", "Median", "Mean", "Optimality Gap")
 
 
-def load_results(study: str | Path) -> list[dict[str, Any]]:
-    """All fine-tuning ``result.json`` of a study, with their ``eval.csv`` as ``curve`` (timestep, return) arrays."""
-    results = []
-    for path in sorted(Path(study).glob("finetune/*/*/seed_*/result.json")):
+#: what a fine-tuning's ``result.json`` must hold, and of which type
+FINETUNE_FIELDS: dict[str, type | tuple[type, ...]] = {
+    "method": str, "label": str, "domain": str, "task": str, "seed": int, "final_return": (int, float),
+    "final_normalized_score": (int, float, type(None)), "wall_time_s": dict,
+}
+#: what a pre-training's ``result.json`` must hold
+PRETRAIN_FIELDS: dict[str, type | tuple[type, ...]] = {"method": str, "domain": str, "seed": int, "steps": int, "snapshots": dict}
+
+
+def _damaged(path: Path, reason: Any) -> ValueError:
+    return ValueError(f"{path} is damaged ({reason}); delete the run folder {path.parent} to run the run again")
+
+
+def read_eval_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """The ``(timesteps, returns)`` of a fine-tuning's ``eval.csv``; a one-line ``ValueError`` naming the file if it
+    is missing or damaged (no evaluation, a value that is no number, steps that do not increase)."""
+    path = Path(path)
+    if not path.is_file():
+        raise _damaged(path, "missing")
+    try:
+        with open(path, newline="") as file:
+            reader = csv.DictReader(file)
+            if not {"timestep", "mean_return"} <= set(reader.fieldnames or ()):
+                raise ValueError(f"no timestep and mean_return columns: {reader.fieldnames}")
+            rows = [(int(row["timestep"]), float(row["mean_return"])) for row in reader]
+    except (ValueError, TypeError, csv.Error) as error:
+        raise _damaged(path, error) from None
+    steps, returns = np.asarray([r[0] for r in rows], dtype=np.int64), np.asarray([r[1] for r in rows], dtype=float)
+    if not rows or not np.all(np.isfinite(returns)) or np.any(np.diff(steps) <= 0):
+        raise _damaged(path, "no evaluation, a non-finite return or steps that do not increase")
+    return steps, returns
+
+
+def read_run_result(folder: str | Path, finetune: bool = True) -> dict[str, Any]:
+    """The ``result.json`` of a done run, checked; a fine-tuning's with its ``eval.csv`` as ``curve``
+    (``(timesteps, returns)`` arrays), whose last evaluation must be its ``final_return``.
+
+    A damaged file (unreadable, a field missing or of another type, a ``final_return`` that its ``eval.csv`` does
+    not have) is a one-line ``ValueError`` that names it and says what to do.
+
+    :param folder: the run folder
+    :param finetune: a fine-tuning (False: a pre-training)
+    """
+    path = Path(folder) / "result.json"
+    try:
         result = json.loads(path.read_text())
-        steps, returns = [], []
-        eval_csv = path.parent / "eval.csv"
-        if eval_csv.exists():
-            with open(eval_csv) as file:
-                for row in csv.DictReader(file):
-                    steps.append(int(row["timestep"]))
-                    returns.append(float(row["mean_return"]))
-        result["curve"] = (np.asarray(steps), np.asarray(returns))
+    except ValueError as error:  # (UnicodeDecodeError and JSONDecodeError are ValueErrors)
+        raise _damaged(path, error) from None
+    fields = FINETUNE_FIELDS if finetune else PRETRAIN_FIELDS
+    if not isinstance(result, dict):
+        raise _damaged(path, f"a {type(result).__name__}, not an object")
+    wrong = [key for key, kind in fields.items() if not isinstance(result.get(key, ...), kind)]
+    if wrong:
+        raise _damaged(path, f"missing or wrong fields {wrong}")
+    if not finetune:
+        return result
+    steps, returns = curve = read_eval_csv(Path(folder) / "eval.csv")
+    if not math.isclose(result["final_return"], returns[-1], rel_tol=1e-9, abs_tol=1e-9):
+        raise ValueError(f"{path} says final_return {result['final_return']} but the last evaluation of its eval.csv "
+                         f"(step {steps[-1]}) is {returns[-1]}: one of the two was changed; delete the run folder "
+                         f"{path.parent} to run the run again")
+    return {**result, "curve": curve}
+
+
+def _legacy_pretrain_seed(study: Path, method: str, domain: str) -> int | None:
+    """The pre-training seed of a fine-tuning whose ``result.json`` predates ``pretrain_seed``: its study's one
+    (shared) pre-training seed, from ``study.json`` or the pre-training's ``result.json`` (None if neither says)."""
+    for path, key in ((study / "study.json", "pretrain_seed"), (study / "pretrain" / f"{method}_{domain}" / "result.json", "seed")):
+        try:
+            value = json.loads(path.read_text()).get(key)
+        except (OSError, ValueError, AttributeError):
+            continue
+        if isinstance(value, int):
+            return value
+    return None
+
+
+def load_results(study: str | Path) -> list[dict[str, Any]]:
+    """All fine-tuning ``result.json`` of a study, checked (:func:`read_run_result`), with their ``eval.csv`` as
+    ``curve`` (timestep, return) arrays, and each one's ``pretrain_seed`` (None: from scratch; a result written
+    before it was recorded: its study's shared pre-training seed)."""
+    study = Path(study)
+    results = []
+    for path in sorted(study.glob("finetune/*/*/seed_*/result.json")):
+        result = read_run_result(path.parent)
+        if "pretrain_seed" not in result:
+            scratch = result.get("from_scratch", False)
+            result["pretrain_seed"] = None if scratch else _legacy_pretrain_seed(study, result["method"], result["domain"])
         results.append(result)
     return results
+
+
+def pairings(results: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    """Per method label, how its runs pair with pre-trainings: the seeds fine-tuned from the pre-training of the
+    same seed (``paired``), those fine-tuned from another seed's (``shared``: ``{pre-training seed: [seeds]}``) and
+    those from scratch (``from_scratch``).
+
+    :param results: fine-tuning results (:func:`load_results`)
+    """
+    out: dict[str, dict[str, Any]] = {}
+    for result in sorted(results, key=lambda r: (r["label"], r["seed"])):
+        entry = out.setdefault(result["label"], {"paired": [], "shared": {}, "from_scratch": [], "unknown": []})
+        seed, pre = result["seed"], result["pretrain_seed"]
+        if result.get("from_scratch"):
+            kind = entry["from_scratch"]
+        elif pre is None:
+            kind = entry["unknown"]
+        else:
+            kind = entry["paired"] if pre == seed else entry["shared"].setdefault(str(pre), [])
+        if seed not in kind:
+            kind.append(seed)
+    return out
+
+
+def describe_pairing(entry: dict[str, Any]) -> str:
+    """One line of :func:`pairings`: ``paired: seeds 0; shared pre-training seed 0: seeds 1, 2``."""
+
+    def seeds(values: list[int]) -> str:
+        return f"seed{'s' if len(values) > 1 else ''} {', '.join(map(str, values))}"
+
+    parts = [f"paired: {seeds(entry['paired'])}"] if entry["paired"] else []
+    parts += [f"shared pre-training seed {pre}: {seeds(values)}" for pre, values in sorted(entry["shared"].items())]
+    parts += [f"from scratch: {seeds(entry['from_scratch'])}"] if entry["from_scratch"] else []
+    parts += [f"pre-training seed unknown: {seeds(entry['unknown'])}"] if entry["unknown"] else []
+    return "; ".join(parts)
 
 
 def _mean_se(values: Sequence[float]) -> tuple[float, float]:
@@ -369,6 +479,19 @@ def write_report(study: str | Path, reps: int = 2000, seed: int = 0) -> dict[str
             f"| {row['method']} | {row['task']} | {row['n']} | {_pm(row['return_mean'], row['return_se'], 1)} "
             f"| {_pm(row['score_mean'], row['score_se'], 3)} |"
         )
+    pairing = pairings(results)
+    lines += [
+        "",
+        "## Pre-training of each run",
+        "",
+        "Paired: fine-tuning seed s from the pre-training of seed s (URLB's protocol); shared: from one pre-training "
+        "of another seed (the CIC code's). A shared study's fine-tunings of its pre-training seed are paired by "
+        "construction.",
+        "",
+        "| method | runs |",
+        "|---|---|",
+    ]
+    lines += [f"| {label} | {describe_pairing(entry)} |" for label, entry in pairing.items()]
     lines += [
         "",
         "## Area under the learning curve",
@@ -430,6 +553,7 @@ def write_report(study: str | Path, reps: int = 2000, seed: int = 0) -> dict[str
     report = {
         "study": study.name,
         "reps": reps,
+        "pairing": pairing,
         "per_task": rows,
         "comparisons": [
             {

@@ -37,13 +37,25 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--tasks", nargs="+", default=None, help="tasks (default: all of the domain)")
     parser.add_argument("--seeds", nargs="+", type=option_type("seeds"), default=list(range(10)),
                         help="fine-tuning seeds")
-    parser.add_argument("--pretrain-seed", type=option_type("pretrain_seed"), default=0, help="pre-training seed")
+    add_pairing_arguments(parser)
     parser.add_argument("--snapshot", type=option_type("snapshot"), default=None, metavar="STEP",
                         help="fine-tune from the snapshot at this pre-training step (default: the final one)")
     parser.add_argument("--from-scratch", action="store_true", default=None, help="no pre-training (default for ddpg)")
     parser.add_argument("--conf-file", default=None, help="yaml (default: zoo_configs/<method>.yml)")
     add_settings_arguments(parser)
     return parser
+
+
+def add_pairing_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--pairing`` and ``--pretrain-seed`` of ``protocol`` and ``study`` (:class:`~sb3_cic.study.record.Pairing`)."""
+    parser.add_argument(
+        "--pairing", choices=("paired", "shared"), default=None,
+        help="paired: pre-train once per seed and fine-tune seed s from pre-training seed s (URLB's protocol; the "
+        "default of a new study); shared: pre-train once, with --pretrain-seed, and fine-tune every seed from it "
+        "(the CIC code's). Default: the study folder's pairing (a study made before this option: shared)",
+    )
+    parser.add_argument("--pretrain-seed", type=option_type("pretrain_seed"), default=None,
+                        help="the one pre-training seed of --pairing shared (given alone: shared; default 0)")
 
 
 def add_settings_arguments(parser: argparse.ArgumentParser) -> None:

@@ -38,9 +38,18 @@ from sb3_cic.common.resumable import ResumableCallback
 from sb3_cic.common.arguments import RANGES, check_argument
 from sb3_cic.constants import DEFAULT_SNAPSHOTS, EXPERT_SCORES
 from sb3_cic.finetune import finetune_callbacks
-from sb3_cic.parsers import add_settings_arguments, build_parser, settings_values  # noqa: F401  (protocol's command line)
+from sb3_cic.parsers import add_pairing_arguments, add_settings_arguments, build_parser, settings_values  # noqa: F401  (protocol's command line)
 from sb3_cic.study.checkpoint import RunCheckpointCallback, RunFolder, write_json
 from sb3_cic.study.graph import build_graph, record_runs
+from sb3_cic.study.record import (
+    Pairing,
+    StudyLock,
+    check_run_settings,
+    rebuild_study_record,
+    resolve_pairing,
+    study_record,
+    write_run_settings,
+)
 from sb3_cic.study.layout import (
     check_snapshot,
     finetune_dir,
@@ -153,6 +162,8 @@ class FinetuneResult:
     skill_sweep: list[list[float]] | None
     #: the step of the checkpoint the run resumed from (0: it ran uninterrupted)
     resumed_from_step: int = 0
+    #: the seed of the pre-training it started from (None: from scratch)
+    pretrain_seed: int | None = None
     wall_time_s: dict[str, float | None] = field(default_factory=dict)
     hyperparams: dict[str, str] = field(default_factory=dict)
 
@@ -173,7 +184,7 @@ def conf_file_record(method: str, config: str | Path | None = None) -> dict[str,
 def check_study_settings(
     study: str | Path,
     settings: Settings,
-    pretrain_seed: int,
+    pairing: Pairing | int,
     pretrained: bool = True,
     configs: dict[str, str | Path | None] | None = None,
 ) -> dict[str, Any]:
@@ -181,35 +192,37 @@ def check_study_settings(
     ``ValueError`` if the folder holds other values of the settings the command's runs use.
 
     ``study.json`` holds the settings the study's runs used so far: the pre-training ones
-    (:attr:`Settings.PRETRAIN_KEYS`, ``pretrain_seed``) once a run pre-trains, each method's yaml
+    (:attr:`Settings.PRETRAIN_KEYS`, the pairing and its ``pretrain_seed``) once a run pre-trains, each method's yaml
     (:func:`conf_file_record`) once it ran. A command is checked against the recorded values of the settings its
-    runs use, and adds those not recorded yet. Writes nothing (see :func:`record_study_settings`).
+    runs use, and adds those not recorded yet. A damaged ``study.json`` is refused; a lost one is rebuilt from the
+    run folders (:func:`~sb3_cic.study.record.study_record`). Writes nothing (see :func:`record_study_settings`).
 
     :param study: study folder
     :param settings: the command's settings
-    :param pretrain_seed: the command's pre-training seed
+    :param pairing: the command's pairing (an int: shared pre-training with that seed)
     :param pretrained: whether the command's runs pre-train (False: only runs from scratch, as DDPG's)
     :param configs: the yaml of each method of the command (None: the default ``zoo_configs/<method>.yml``);
         None: not checked
     """
+    pairing = Pairing("shared", pairing) if isinstance(pairing, int) else pairing
     wanted: dict[str, Any] = {"settings": settings.study_settings(pretrained)}
     if pretrained:
-        wanted["pretrain_seed"] = pretrain_seed
+        wanted.update(pairing.record())
     if configs:
         wanted["conf_files"] = {method: conf_file_record(method, config) for method, config in configs.items()}
-    path = study_file(study)
-    if not path.exists():  # a new study (or one made before study.json existed: recorded as it goes on)
+    recorded = study_record(study)
+    if recorded is None:  # a new study
         return wanted
-    try:
-        recorded = json.loads(path.read_text())
-        recorded = {key: recorded[key] for key in ("settings", "pretrain_seed", "conf_files") if key in recorded}
-        old_settings, old_confs = dict(recorded["settings"]), dict(recorded.get("conf_files", {}))
-    except (ValueError, KeyError, TypeError) as error:
-        raise ValueError(f"unreadable {path} ({error!r})") from error
+    recorded = {key: recorded[key] for key in ("settings", "pretrain_seed", "pairing", "conf_files") if key in recorded}
+    old_settings, old_confs = dict(recorded.get("settings", {})), dict(recorded.get("conf_files", {}))
     diff = {key: (old_settings[key], value) for key, value in wanted["settings"].items()
             if key in old_settings and old_settings[key] != value}
-    if pretrained and recorded.get("pretrain_seed", pretrain_seed) != pretrain_seed:
-        diff["pretrain_seed"] = (recorded["pretrain_seed"], pretrain_seed)
+    old_pairing = Pairing.from_record(recorded)
+    if pretrained and old_pairing is not None and old_pairing != pairing:
+        if old_pairing.mode == pairing.mode:
+            diff["pretrain_seed"] = (old_pairing.seed, pairing.seed)
+        else:
+            diff["pairing"] = (old_pairing.describe(), pairing.describe())
     for method, conf in wanted.get("conf_files", {}).items():
         if method in old_confs and old_confs[method]["sha256"] != conf["sha256"]:
             diff[f"conf_file of {method} (its content)"] = (old_confs[method]["file"], conf["file"])
@@ -219,8 +232,8 @@ def check_study_settings(
             "Use the study's settings or another folder"
         )
     merged = {**recorded, "settings": {**old_settings, **wanted["settings"]}}
-    if "pretrain_seed" in wanted:
-        merged["pretrain_seed"] = pretrain_seed
+    if pretrained and old_pairing is None:  # (a study made before pairing existed keeps its record as it is)
+        merged.update(pairing.record())
     if old_confs or "conf_files" in wanted:
         merged["conf_files"] = {**old_confs, **wanted.get("conf_files", {})}
     return merged
@@ -229,18 +242,38 @@ def check_study_settings(
 def record_study_settings(
     study: str | Path,
     settings: Settings,
-    pretrain_seed: int,
+    pairing: Pairing | int,
     pretrained: bool = True,
     configs: dict[str, str | Path | None] | None = None,
 ) -> None:
     """Check (:func:`check_study_settings`, same arguments), then write into ``<study>/study.json`` the settings
-    it does not record yet (its runs are kept)."""
-    wanted = check_study_settings(study, settings, pretrain_seed, pretrained, configs)
+    it does not record yet (its runs are kept; a lost ``study.json`` is written anew from the run folders)."""
+    wanted = check_study_settings(study, settings, pairing, pretrained, configs)
     path = study_file(study)
-    data = json.loads(path.read_text()) if path.exists() else {}
-    if {**data, **wanted} != data:
+    data = json.loads(path.read_text()) if path.exists() else (rebuild_study_record(study) or {})
+    if {**data, **wanted} != data or not path.exists():
         path.parent.mkdir(parents=True, exist_ok=True)
         write_json(path, {**data, **wanted})
+
+
+def run_record(
+    row: list[Any], settings: Settings, from_scratch: bool, pairing: Pairing | None, config: str | Path | None = None
+) -> dict[str, Any]:
+    """What a run folder records of the settings it is made with (``settings.json``,
+    :func:`~sb3_cic.study.record.check_run_settings`): the run, the study settings it uses, its yaml, its pairing.
+
+    :param row: the run as ``study.json`` lists it: ``[method, domain, task or None, seed, snapshot or None]``
+    :param settings: the command's settings
+    :param from_scratch: a run without pre-training (its record has no pre-training settings)
+    :param pairing: the pairing of its pre-training (None: from scratch)
+    :param config: the ``--conf-file`` (None: the default)
+    """
+    return {
+        "run": list(row),
+        "settings": settings.study_settings(pretrained=not from_scratch),
+        "conf_file": conf_file_record(row[0], config),
+        "pairing": None if from_scratch or pairing is None else pairing.record(),
+    }
 
 
 def snapshot_steps(settings: Settings, steps: int) -> list[int]:
@@ -371,6 +404,7 @@ def pretrain(
     settings: Settings | None = None,
     seed: int = 0,
     config: str | Path | None = None,
+    paired: bool = False,
 ) -> dict[str, Any]:
     """Pre-train ``method`` on ``URLB/<domain>-v0`` once (skipped if its ``result.json`` exists; an unfinished
     run resumes from its checkpoint, written every ``settings.pretrain_checkpoint_every`` steps).
@@ -381,16 +415,20 @@ def pretrain(
     :param settings: scale settings
     :param seed: pre-training seed
     :param config: yaml file (default ``zoo_configs/<method>.yml``)
+    :param paired: one of a paired study's pre-trainings (one per seed, :func:`~sb3_cic.study.layout.pretrain_dir`);
+        False: a shared-pre-training study's one pre-training
     :return: the pre-training ``result.json`` content
     """
     settings = settings or Settings()
     cls = zoo.get_algo(method)
-    folder = RunFolder(pretrain_dir(study, method, domain))
+    folder = RunFolder(pretrain_dir(study, method, domain, seed if paired else None))
+    pairing = Pairing("paired") if paired else Pairing("shared", seed)
+    check_run_settings(folder.path, run_record([method, domain, None, seed, None], settings, False, pairing, config))
     if folder.done:
         folder.clean()  # what a run killed just after writing result.json left
         return json.loads(folder.result.read_text())
     checkpoint = folder.read_meta()  # a ValueError for a corrupt or missing checkpoint, before any work
-    folder.path.mkdir(parents=True, exist_ok=True)
+    write_run_settings(folder.path, run_record([method, domain, None, seed, None], settings, False, pairing, config))
     _set_threads(settings)
     env_id = f"URLB/{domain}-v0"
     hyperparams, _, n_timesteps, _ = zoo.zoo_hyperparams(method, env_id, config, settings.overrides(finetune=False))
@@ -466,6 +504,7 @@ def finetune(
     snapshot: int | None = None,
     from_scratch: bool | None = None,
     config: str | Path | None = None,
+    paired: bool = False,
 ) -> dict[str, Any]:
     """One fine-tuning run (or a from-scratch run for DDPG), skipped if its ``result.json`` exists; an unfinished
     run resumes from its checkpoint (written every ``settings.finetune_checkpoint_every`` steps).
@@ -479,6 +518,8 @@ def finetune(
     :param snapshot: pre-training step of the snapshot to start from (None: the final one)
     :param from_scratch: no pre-training (default: True for ``ddpg``)
     :param config: yaml file (default ``zoo_configs/<method>.yml``)
+    :param paired: start from the pre-training of seed ``seed`` (a paired study); False: from the study's one
+        shared pre-training
     :return: the run's ``result.json`` content
     """
     settings = settings or Settings()
@@ -486,9 +527,10 @@ def finetune(
     from_scratch = (not zoo.has_reward_module(cls)) if from_scratch is None else from_scratch
     name, env_id = task_name(domain, task), task_env_id(domain, task)
     pre: dict[str, Any] | None = None
-    label = method
+    label, pairing = method, None
+    pre_dir = pretrain_dir(study, method, domain, seed if paired else None)
     if not from_scratch:
-        pre_file = pretrain_dir(study, method, domain) / "result.json"
+        pre_file = pre_dir / "result.json"
         if not pre_file.exists():
             raise FileNotFoundError(f"pre-train {method} on {domain} first ({pre_file} is missing)")
         pre = json.loads(pre_file.read_text())
@@ -496,15 +538,19 @@ def finetune(
         if str(snapshot) not in {str(k) for k in pre["snapshots"]}:
             raise ValueError(f"no snapshot at {snapshot} steps; saved: {sorted(int(k) for k in pre['snapshots'])}")
         label = run_label(method, None if snapshot == int(pre["steps"]) else snapshot)
+        pairing = Pairing("paired") if paired else Pairing("shared", int(pre["seed"]))
     folder = RunFolder(finetune_dir(study, label, name, seed))
+    record = run_record([method, domain, name, seed, None if label == method else snapshot], settings, from_scratch,
+                        pairing, config)
+    check_run_settings(folder.path, record)
     if folder.done:
         folder.clean()  # what a run killed just after writing result.json left
         return json.loads(folder.result.read_text())
-    snapshot_path = snapshot_file(pretrain_dir(study, method, domain), snapshot)
+    snapshot_path = snapshot_file(pre_dir, snapshot)
     if not from_scratch:
         check_snapshot(snapshot_path)
     checkpoint = folder.read_meta()  # a ValueError for a corrupt or missing checkpoint, before any work
-    folder.path.mkdir(parents=True, exist_ok=True)
+    write_run_settings(folder.path, record)
     _set_threads(settings)
 
     overrides = settings.overrides(finetune=not from_scratch)
@@ -563,6 +609,7 @@ def finetune(
         finetune_skill=None if skill is None else [float(v) for v in np.asarray(skill)],
         skill_sweep=None if sweep is None else [[float(np.mean(z)), float(ret)] for z, ret in sweep],
         resumed_from_step=checkpoint["step"] if checkpoint else 0,
+        pretrain_seed=None if pre is None else int(pre["seed"]),
         wall_time_s={"finetune": wall, "pretrain": None if pre is None else pre["wall_time_s"]["pretrain"]},
         hyperparams=_describe({**hyperparams, "policy_kwargs": model.policy_kwargs}),
     )
@@ -579,12 +626,17 @@ def run_protocol(
     settings: Settings | None = None,
     snapshot: int | None = None,
     from_scratch: bool | None = None,
-    pretrain_seed: int = 0,
+    pretrain_seed: int | None = None,
     config: str | Path | None = None,
+    pairing: str | None = None,
 ) -> list[dict[str, Any]]:
-    """Run the URLB protocol for one method and domain: pre-train once, fine-tune on tasks x seeds.
+    """Run the URLB protocol for one method and domain: pre-train, fine-tune on tasks x seeds.
 
-    Finished runs (``result.json`` present) are not run again, so an interrupted study resumes.
+    Paired (URLB's, the default of a new study): one pre-training per seed, fine-tuning seed s from pre-training
+    seed s. Shared (the CIC code's): one pre-training, of seed ``pretrain_seed``, for every fine-tuning seed. A
+    study keeps its pairing (:func:`~sb3_cic.study.record.resolve_pairing`). Finished runs (``result.json`` present)
+    are not run again, so an interrupted study resumes. One command drives a study folder at a time
+    (:class:`~sb3_cic.study.record.StudyLock`).
 
     :param study: study folder
     :param method: rl-zoo name of the method (``ddpg`` trains from scratch)
@@ -594,8 +646,9 @@ def run_protocol(
     :param settings: scale and evaluation settings
     :param snapshot: snapshot to fine-tune from (default: the final one)
     :param from_scratch: no pre-training (default: True for ``ddpg``)
-    :param pretrain_seed: seed of the pre-training
+    :param pretrain_seed: seed of shared pre-training (given alone: ``pairing="shared"``)
     :param config: yaml file (default ``zoo_configs/<method>.yml``)
+    :param pairing: ``paired``, ``shared`` or None (the study's; a new study: ``paired``)
     :return: the fine-tuning results
     """
     settings = settings or Settings()
@@ -606,16 +659,21 @@ def run_protocol(
         raise ValueError(f"unknown domain {domain!r}; known: {sorted(DOMAIN_TASKS)}")
     for task in tasks or ():
         task_env_id(domain, task)  # a ValueError for an unknown task
+    chosen = resolve_pairing(study, pairing, pretrain_seed)
     _check_run_inputs(study, method, domain, tasks or DOMAIN_TASKS[domain], settings, snapshot, from_scratch, config)
-    record_study_settings(study, settings, pretrain_seed, pretrained=not from_scratch, configs={method: config})
-    if snapshot is None and from_scratch != zoo.has_reward_module(cls):  # the study's layout: listed for ``status``
-        record_runs(study, build_graph([method], [domain], tasks, seeds, pretrain_seed))
-    if not from_scratch:
-        pretrain(study, method, domain, settings, seed=pretrain_seed, config=config)
-    results = []
-    for task in tasks or DOMAIN_TASKS[domain]:
-        for seed in seeds:
-            results.append(finetune(study, method, domain, task, seed, settings, snapshot, from_scratch, config))
+    check_study_settings(study, settings, chosen, pretrained=not from_scratch, configs={method: config})
+    with StudyLock(study):
+        record_study_settings(study, settings, chosen, pretrained=not from_scratch, configs={method: config})
+        if snapshot is None and from_scratch != zoo.has_reward_module(cls):  # the study's layout: listed for ``status``
+            record_runs(study, build_graph([method], [domain], tasks, seeds, chosen))
+        if not from_scratch:
+            for seed in sorted({chosen.pretrain_seed(s) for s in seeds}):
+                pretrain(study, method, domain, settings, seed=seed, config=config, paired=chosen.paired)
+        results = []
+        for task in tasks or DOMAIN_TASKS[domain]:
+            for seed in seeds:
+                results.append(finetune(study, method, domain, task, seed, settings, snapshot, from_scratch, config,
+                                        paired=chosen.paired))
     return results
 
 
@@ -640,6 +698,7 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
         from_scratch=args.from_scratch,
         pretrain_seed=args.pretrain_seed,
         config=args.conf_file,
+        pairing=args.pairing,
     )
     print(f"{len(results)} fine-tuning runs in {Path(args.study) / 'finetune'}; report: sb3-cic report {args.study}")
     return results

@@ -15,7 +15,7 @@ from torch import nn
 import sb3_cic  # noqa: F401
 from sb3_cic import CIC, URLBDDPG
 from sb3_cic.buffers import URLBReplayBuffer
-from sb3_cic.common.save_util import networks_only
+from sb3_cic.common.save_util import NETWORKS_ONLY_ENTRY, is_networks_only, networks_only
 
 
 def test_policy_layers_match_spec():
@@ -226,7 +226,10 @@ def test_networks_only_snapshot_loads_with_fresh_optimisers(tmp_path, tiny):
     with zipfile.ZipFile(small) as archive:
         names = archive.namelist()
     assert "policy.pth" in names and "reward_module.pth" in names and not any("optimizer" in n for n in names)
+    assert NETWORKS_ONLY_ENTRY in names and is_networks_only(small) and not is_networks_only(tmp_path / "full.zip")
     assert small.stat().st_size < (tmp_path / "full.zip").stat().st_size
+    with pytest.raises(ValueError):  # set_parameters is SB3's: the optimisers' states are missing objects
+        model.set_parameters(small, exact_match=True)
     loaded = CIC.load(small, env="URLB/walker-v0")
     for a, b in zip(model.policy.state_dict().values(), loaded.policy.state_dict().values()):
         assert th.equal(a, b)
@@ -242,3 +245,10 @@ def test_networks_only_snapshot_loads_with_fresh_optimisers(tmp_path, tiny):
                 if name != "reward_module.pth":
                     dst.writestr(name, src.read(name))
         CIC.load(tmp_path / "broken.zip", env="URLB/walker-v0")
+    with zipfile.ZipFile(small) as src, zipfile.ZipFile(tmp_path / "older.zip", "w") as dst:  # written before the entry
+        for name in src.namelist():
+            if name != NETWORKS_ONLY_ENTRY:
+                dst.writestr(name, src.read(name))
+    assert is_networks_only(tmp_path / "older.zip")
+    older = CIC.load(tmp_path / "older.zip", env="URLB/walker-v0")
+    assert all(th.equal(a, b) for a, b in zip(older.actor.parameters(), model.actor.parameters()))

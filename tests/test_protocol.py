@@ -42,7 +42,7 @@ CIC_TASKS = ("stand", "flip")
 
 
 def _run_study(study: Path) -> None:
-    run_protocol(study, "cic", "walker", tasks=CIC_TASKS, seeds=SEEDS, settings=SETTINGS)
+    run_protocol(study, "cic", "walker", tasks=CIC_TASKS, seeds=SEEDS, settings=SETTINGS, pairing="shared")
     run_protocol(study, "ddpg", "walker", tasks=("stand",), seeds=SEEDS, settings=SETTINGS)
 
 

@@ -17,6 +17,7 @@ from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.noise import OrnsteinUhlenbeckActionNoise
 from stable_baselines3.common.torch_layers import FlattenExtractor
+from stable_baselines3.common.utils import get_device
 
 from envs import SkillObservationWrapper, VecSkillObservation
 from sb3_cic import APS, APT, CIC, DIAYN, ICM, MOSS, RND, SMM, Disagreement, ProtoRL, URLBDDPG, URLBReplayBuffer
@@ -349,3 +350,68 @@ def test_every_saved_tensor_is_floating_point(cls):
     for name, state in params.items():
         if "optim" not in name:
             assert all(t.is_floating_point() for t in state.values()), name
+
+
+@pytest.mark.parametrize("cls", ALL)
+def test_save_load(cls, tmp_path):
+    """SB3's ``test_save_load`` (``tests/test_save_load.py``): ``set_parameters`` refuses an invalid object, a
+    missing object with ``exact_match`` (ValueError), a missing tensor (torch's RuntimeError); it sets what it is
+    given and nothing else; save and load keep the parameters and the actions, on every device; learning goes on."""
+    from collections import OrderedDict
+    from copy import deepcopy
+
+    from stable_baselines3.common.envs import IdentityEnvBox
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    env = DummyVecEnv([lambda: IdentityEnvBox(-10, 10)])
+    model = cls("MlpPolicy", env, reward_free=False, **small()).learn(60)
+    env.reset()
+    observations = np.concatenate([env.step([env.action_space.sample()])[0] for _ in range(10)], axis=0)
+    original_params = deepcopy(model.get_parameters())
+
+    invalid_object_params = {**deepcopy(original_params), "I_should_not_be_a_valid_object": "and_I_am_an_invalid_tensor"}
+    for exact_match in (True, False):
+        with pytest.raises(ValueError):
+            model.set_parameters(invalid_object_params, exact_match=exact_match)
+    missing_object_params = dict(list(original_params.items())[:-1])  # the last one is an optimiser's state
+    with pytest.raises(ValueError):
+        model.set_parameters(missing_object_params, exact_match=True)
+    for name in original_params:  # any one object missing, network or optimiser
+        with pytest.raises(ValueError):
+            model.set_parameters({k: v for k, v in original_params.items() if k != name}, exact_match=True)
+    missing_state_dict_tensor_params = {
+        name: dict(list(state.items())[:-1]) for name, state in original_params.items()
+    }
+    with pytest.raises(RuntimeError):
+        model.set_parameters(missing_state_dict_tensor_params, exact_match=True)
+
+    random_params = {
+        name: state if "optim" in name else OrderedDict((k, th.rand_like(v)) for k, v in list(state.items())[:-1])
+        for name, state in original_params.items()
+    }
+    model.set_parameters(random_params, exact_match=False)
+    new_params = model.get_parameters()
+    for name, state in original_params.items():
+        if "optim" in name:
+            continue
+        last_key = list(state)[-1]
+        for key, value in state.items():
+            assert th.allclose(value, new_params[name][key]) == (key == last_key), (name, key)
+
+    params = new_params
+    selected_actions, _ = model.predict(observations, deterministic=True)
+    model.save(tmp_path / "test_save.zip")
+    del model
+    for device in ["auto", "cpu", "cuda"] if th.cuda.is_available() else ["auto", "cpu"]:
+        model = cls.load(str(tmp_path / "test_save.zip"), env=env, device=device)
+        assert model.device.type == get_device(device).type
+        new_params = model.get_parameters()
+        for name in new_params:
+            if "optim" in name:
+                continue
+            for key in params[name]:
+                assert th.allclose(params[name][key].cpu(), new_params[name][key].cpu()), (name, key)
+        new_selected_actions, _ = model.predict(observations, deterministic=True)
+        assert np.allclose(selected_actions, new_selected_actions, 1e-4)
+        model.learn(60)
+

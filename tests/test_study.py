@@ -80,7 +80,8 @@ def _files(folder: Path) -> dict[str, tuple[int, int]]:
 def study(ray_instance, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """cic and ddpg x 2 tasks x 2 seeds on Ray, 2 runs at a time."""
     path = tmp_path_factory.mktemp("ray_study")
-    runs, statuses = run_study(path, ["cic", "ddpg"], ["walker"], TASKS, SEEDS, SETTINGS, progress_bar=False)
+    runs, statuses = run_study(path, ["cic", "ddpg"], ["walker"], TASKS, SEEDS, SETTINGS, progress_bar=False,
+                               pairing="shared")
     assert len(runs) == 9 and [s["state"] for s in statuses] == ["done"] * 9
     return path
 
@@ -92,7 +93,7 @@ def test_study_on_ray_equals_sequential_protocol(study: Path, tmp_path: Path):
     assert not list(study.rglob("checkpoint*")) and not list(study.rglob("progress.json"))  # deleted once done
     sequential = tmp_path / "sequential"
     for method in ("cic", "ddpg"):
-        run_protocol(sequential, method, "walker", tasks=TASKS, seeds=SEEDS, settings=SETTINGS)
+        run_protocol(sequential, method, "walker", tasks=TASKS, seeds=SEEDS, settings=SETTINGS, pairing="shared")
     expected = _results(sequential)
     assert {k: r["final_return"] for k, r in results.items()} == {k: r["final_return"] for k, r in expected.items()}
     assert _curves(study) == _curves(sequential)  # every evaluation, not only the last
@@ -135,7 +136,7 @@ def test_sigkill_after_first_checkpoint_resumes_identically(tmp_path: Path):
     _kill_after_checkpoint(command, env, pretrain / "checkpoint.zip")
     assert not (pretrain / "result.json").exists()
     text, finished = status_report(study)  # the killed run waits with its checkpoint
-    assert not finished and "pretrain cic walker: pending, last checkpoint at step 1000" in text
+    assert not finished and "pretrain cic walker seed 0: pending, last checkpoint at step 1000" in text
     _kill_after_checkpoint(command, env, finetune / "checkpoint.zip")
     assert (pretrain / "result.json").exists() and not (finetune / "result.json").exists()
 
@@ -289,7 +290,7 @@ def test_fine_tuning_from_an_intermediate_snapshot(ray_instance, tmp_path: Path,
     assert not study.exists()
     runs, statuses = run_study(study, ["cic", "ddpg"], ["walker"], ["stand"], [0], settings, from_snapshot=500,
                                progress_bar=False)
-    assert [str(r) for r in runs] == ["pretrain cic walker", "cic@500 walker_stand seed 0", "ddpg walker_stand seed 0"]
+    assert [str(r) for r in runs] == ["pretrain cic walker seed 0", "cic@500 walker_stand seed 0", "ddpg walker_stand seed 0"]
     assert [s["state"] for s in statuses] == ["done"] * 3
     result = json.loads((study / "finetune" / "cic@500" / "walker_stand" / "seed_0" / "result.json").read_text())
     assert result["label"] == "cic@500" and result["snapshot_steps"] == 500
@@ -327,13 +328,13 @@ def test_runs_from_scratch_are_not_checked_against_pre_training_settings(study: 
     folder = tmp_path / "study"
     shutil.copytree(study, folder)
     other = replace(SETTINGS, pretrain_steps=5000, snapshots=(700,))
-    ddpg = build_graph(["ddpg"], ["walker"], list(TASKS), list(SEEDS), pretrain_seed=3)
+    ddpg = build_graph(["ddpg"], ["walker"], list(TASKS), list(SEEDS), 3)
     check_study_settings(folder, other, 3, **settings_use(ddpg))
     recorded = (folder / "study.json").read_text()
     runs, statuses = run_study(folder, ["ddpg"], ["walker"], list(TASKS), list(SEEDS), other, pretrain_seed=3,
                                progress_bar=False)
     assert len(runs) == 4 and statuses == [] and json.loads((folder / "study.json").read_text()) == json.loads(recorded)
-    cic = build_graph(["cic"], ["walker"], list(TASKS), list(SEEDS), pretrain_seed=3)
+    cic = build_graph(["cic"], ["walker"], list(TASKS), list(SEEDS), 3)
     with pytest.raises(ValueError, match="pretrain_steps.*1000, 5000.*pretrain_seed.*0, 3"):
         check_study_settings(folder, other, 3, **settings_use(cic))
     with pytest.raises(ValueError, match="hidden_dim.*32, 64"):

@@ -1,4 +1,5 @@
-"""Reading a saved model before loading it: its attributes, and what explains a snapshot loaded by mistake."""
+"""Saving and loading a URLB agent: reading a saved model before loading it (its attributes, what explains a
+snapshot loaded by mistake), networks-only snapshots and :class:`SaveLoadMixin`, the algorithm's save/load."""
 
 from __future__ import annotations
 
@@ -14,13 +15,17 @@ from typing import Any, Iterator
 
 import numpy as np
 import torch as th
-from stable_baselines3.common.save_util import json_to_data, open_path
+from stable_baselines3.common.save_util import json_to_data, open_path, recursive_getattr
 from stable_baselines3.common.type_aliases import GymEnv
 
 from sb3_cic.common.env_util import env_id_of, prepare_env
 from sb3_cic.skills import SkillPrior
 from sb3_cic.version import __version__
 
+
+#: the entry by which a networks-only snapshot says what it is (:func:`networks_only`)
+NETWORKS_ONLY_ENTRY = "networks_only.txt"
+NETWORKS_ONLY_NOTE = "A snapshot of the networks without the optimisers' states: loaded with fresh optimisers.\n"
 
 #: what reading a damaged zip file raises (a truncated download, a file cut short by a full disk...)
 DAMAGED_ZIP: tuple[type[Exception], ...] = (zipfile.BadZipFile, EOFError, zlib.error)
@@ -74,6 +79,17 @@ def read_saved_data(path: Any, custom_objects: dict[str, Any] | None = None) -> 
         raise ValueError(f"{path} is not a readable saved model: its 'data' entry is not valid JSON ({error})") from None
 
 
+def is_networks_only(path: Any) -> bool:
+    """Whether a model file is a networks-only snapshot (:func:`networks_only`): it says so (its
+    :data:`NETWORKS_ONLY_ENTRY`), or, written before it did, it holds no optimiser state at all.
+
+    :param path: a path or a file object (left at its position)
+    """
+    with _archive(path) as archive:
+        names = archive.namelist()
+    return NETWORKS_ONLY_ENTRY in names or not any(is_optimizer_state(name) for name in names if name.endswith(".pth"))
+
+
 def check_tensors(path: Any) -> None:
     """``ValueError`` naming the first tensor entry (``policy.pth``...) of a saved model that torch cannot read with
     ``weights_only=True``. torch's own message is not passed on: it suggests ``weights_only=False``, which runs any
@@ -118,8 +134,9 @@ def is_optimizer_state(name: str) -> bool:
 
 def networks_only(path: str | Path, out: str | Path | None = None) -> Path:
     """Copy a saved model without its optimiser states (``*optimizer.pth``): a snapshot of the networks, the
-    reward module and the attributes, about half the size, that :meth:`~sb3_cic.ddpg.URLBDDPG.load` and
-    ``load_pretrained`` read with fresh optimisers (fine-tuning starts with fresh ones anyway).
+    reward module and the attributes, about half the size, that :meth:`SaveLoadMixin.load` and
+    ``load_pretrained`` read with fresh optimisers (fine-tuning starts with fresh ones anyway). The copy says what
+    it is (a :data:`NETWORKS_ONLY_ENTRY`).
 
     :param path: the saved model (``.zip``)
     :param out: where to write the copy (default: over ``path``)
@@ -132,7 +149,9 @@ def networks_only(path: str | Path, out: str | Path | None = None) -> Path:
     with tempfile.NamedTemporaryFile(dir=out.parent, suffix=".zip", delete=False) as file:
         with zipfile.ZipFile(file, "w", zipfile.ZIP_DEFLATED) as archive:
             for info, content in entries:
-                archive.writestr(info, content)
+                if info.filename != NETWORKS_ONLY_ENTRY:
+                    archive.writestr(info, content)
+            archive.writestr(NETWORKS_ONLY_ENTRY, NETWORKS_ONLY_NOTE)
     shutil.copymode(path, file.name)  # the source's permissions, not the temporary file's
     os.replace(file.name, out)
     return out
@@ -144,7 +163,7 @@ def package_version() -> str:
 
 
 class SavedModel:
-    """What :meth:`~sb3_cic.ddpg.URLBDDPG.load` reads of a saved model before loading it, to explain a mistake.
+    """What :meth:`SaveLoadMixin.load` reads of a saved model before loading it, to explain a mistake.
 
     A model of another library (a stock SB3 ``DDPG``, whose policy is not one of sb3-cic's) or without the
     attributes of a saved model is a ``ValueError`` naming ``source``.
@@ -228,3 +247,77 @@ class SavedModel:
                 f"{int(np.prod(action_shape))}): fine-tune a snapshot pre-trained on {name}'s domain{self.version_note()}"
             )
         return env
+
+class SaveLoadMixin:
+    """What :class:`~sb3_cic.ddpg.URLBDDPG` saves and how it loads, mixed in before SB3's algorithm.
+
+    Saved: SB3's state dicts plus the reward module and its optimiser (built in ``_setup_model``, excluded from
+    pickling). ``load`` checks the snapshot against the class and env first (:class:`SavedModel`); a
+    networks-only snapshot (:func:`is_networks_only`) loads through its own path, with the fresh optimisers'
+    states in place of the saved ones, and SB3's ``set_parameters`` stays as strict as SB3's for every other use.
+    """
+
+    #: the attributes SB3 pickles that hold a reward module or its parameters (rebuilt in ``_setup_model``)
+    _unsaved: tuple[str, ...] = ("reward_module", "_critic_params", "_critic_target_params", "_update_metrics", "_compiled_step")
+
+    def _excluded_save_params(self) -> list[str]:
+        return [*super()._excluded_save_params(), *self._unsaved]  # type: ignore[misc]
+
+    def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
+        state_dicts, variables = super()._get_torch_save_params()  # type: ignore[misc]
+        if getattr(self, "reward_module", None) is not None:
+            state_dicts += ["reward_module", "reward_module.optimizer"]
+        return state_dicts, variables
+
+    def set_parameters(self, load_path_or_dict: Any, exact_match: bool = True, device: th.device | str = "auto") -> None:
+        """SB3's (a missing object with ``exact_match``: ``ValueError``). Called by :meth:`load` on a networks-only
+        snapshot, it first adds the fresh optimisers' states (only there: the flag :meth:`load` sets is used once)."""
+        if self.__dict__.pop("_load_fresh_optimizers", False) and isinstance(load_path_or_dict, dict):
+            names = self._get_torch_save_params()[0]
+            fresh = {name: recursive_getattr(self, name).state_dict() for name in names if is_optimizer_state(name)}
+            load_path_or_dict = {**fresh, **load_path_or_dict}
+        super().set_parameters(load_path_or_dict, exact_match=exact_match, device=device)  # type: ignore[misc]
+
+    @classmethod
+    def load(
+        cls,
+        path: Any,
+        env: GymEnv | str | None = None,
+        device: th.device | str = "auto",
+        custom_objects: dict[str, Any] | None = None,
+        print_system_info: bool = False,
+        force_reset: bool = True,
+        **kwargs: Any,
+    ) -> Any:
+        """Load a saved model (see SB3's ``load``); ``env`` may be an id and is wrapped with the saved skill prior.
+        A snapshot of another method or env is a ``ValueError`` that says so (:class:`SavedModel`); a networks-only
+        snapshot (:func:`networks_only`) loads with fresh optimisers.
+        """
+        from sb3_cic.common.arguments import check_ranges
+        from sb3_cic.policies import normalize_policy_kwargs
+
+        if "policy_kwargs" in kwargs:  # compared with the saved ones, which are normalised
+            kwargs["policy_kwargs"] = normalize_policy_kwargs(kwargs["policy_kwargs"])
+        check_ranges(kwargs)
+        saved = SavedModel(read_saved_data(path, custom_objects), source=path)
+        env = saved.check(cls, env)
+        if is_networks_only(path):
+            kwargs["_load_fresh_optimizers"] = True  # read once by set_parameters
+        try:
+            with quiet_tensor_reads():
+                model = super().load(  # type: ignore[misc]
+                    path, env=env, device=device, custom_objects=custom_objects,
+                    print_system_info=print_system_info, force_reset=force_reset, **kwargs,
+                )
+        except (RuntimeError, ValueError, KeyError) as error:  # the saved state dicts do not fit this class's
+            # (or a damaged entry); SB3's load answers set_parameters' ValueError with a KeyError of its DQN patch:
+            # the ValueError says why
+            check_tensors(path)
+            cause = error.__context__ if isinstance(error, KeyError) and error.__context__ is not None else error
+            raise ValueError(f"{saved.describe()} does not fit {cls.__name__}: {cause}{saved.version_note()}") from error
+        except Exception:  # a damaged tensor entry: named, without torch's advice to unpickle it
+            check_tensors(path)
+            raise
+        model.package_version = package_version()  # what will save it next
+        return model
+

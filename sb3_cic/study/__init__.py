@@ -7,7 +7,9 @@
   pre-training, checked against the study folder before anything runs.
 * the **engine** runs the graph as Ray tasks with their resources and ``max_retries``.
 
-The study's folder layout (which folder holds which run) is :mod:`.layout`, read by the runs and the graph.
+The study's folder layout (which folder holds which run) is :mod:`.layout`, read by the runs and the graph;
+what the folder records and how every command checks it (the pairing of fine-tunings with pre-trainings, each
+run's settings, ``study.json``, the lock of the driving command) is :mod:`.record`.
 
 :mod:`.cli` holds ``sb3-cic study`` and ``sb3-cic status``.
 

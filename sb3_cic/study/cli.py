@@ -3,10 +3,16 @@
 from __future__ import annotations
 
 import argparse
-from typing import Sequence
+import contextlib
+import signal
+import sys
+from typing import Any, Iterator, Sequence
 
 from sb3_cic.common.arguments import argument_parser, option_type
-from sb3_cic.parsers import add_settings_arguments
+from sb3_cic.parsers import add_pairing_arguments, add_settings_arguments
+
+#: the exit codes of a command ended by a signal (the shell's: 128 + the signal's number)
+INTERRUPTED_CODES: dict[int, int] = {signal.SIGINT: 130, signal.SIGTERM: 143}
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -21,7 +27,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--domains", nargs="+", default=["all"], help="walker quadruped jaco, or all")
     parser.add_argument("--tasks", nargs="+", default=None, help="tasks (flip or walker_flip; default: each domain's)")
     parser.add_argument("--seeds", nargs="+", type=option_type("seeds"), default=list(range(10)), help="fine-tuning seeds")
-    parser.add_argument("--pretrain-seed", type=option_type("pretrain_seed"), default=0, help="pre-training seed")
+    add_pairing_arguments(parser)
     parser.add_argument("--from-snapshot", type=option_type("from_snapshot"), default=None, metavar="STEP",
                         help="fine-tune from the snapshot at this pre-training step (one of --snapshots; default: "
                         "the final one); the runs are <method>@STEP")
@@ -37,11 +43,41 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+class Interrupted(KeyboardInterrupt):
+    """SIGINT or SIGTERM during ``sb3-cic study``.
+
+    :param signum: the signal
+    """
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+@contextlib.contextmanager
+def interruptible() -> Iterator[list[int]]:
+    """SIGINT and SIGTERM raise :class:`Interrupted` in this (main) thread while the block runs; the block gets the
+    list of the signals received (Ray may re-raise the exception as a plain ``KeyboardInterrupt``)."""
+    received: list[int] = []
+
+    def interrupt(signum: int, frame: Any) -> None:
+        received.append(signum)
+        raise Interrupted(signum)
+
+    previous = {signum: signal.signal(signum, interrupt) for signum in INTERRUPTED_CODES}
+    try:
+        yield received
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """``sb3-cic study``; returns the exit code: 0 when every run of the command is done.
 
     Bad input is a ``ValueError`` before anything is written or run (:func:`~sb3_cic.study.engine.run_study`);
-    :func:`sb3_cic.cli.main` reports it in one line.
+    :func:`sb3_cic.cli.main` reports it in one line. SIGINT or SIGTERM stop the runs (no process of the command
+    writes afterwards) and end the command with one line that says how to resume, and the exit code 130 or 143.
     """
     args = build_parser().parse_args(argv)
     from sb3_cic.protocol import settings_from_args
@@ -49,12 +85,20 @@ def main(argv: Sequence[str] | None = None) -> int:
     from sb3_cic.study.graph import status_report
 
     settings = settings_from_args(args)
-    runs, statuses = run_study(
-        args.study, args.methods, args.domains, args.tasks, args.seeds, settings,
-        pretrain_seed=args.pretrain_seed, address=args.address, workers=args.workers,
-        cpus_per_run=args.cpus_per_run, gpus_per_run=args.gpus_per_run, max_retries=args.max_retries,
-        progress_bar=not args.no_progress, from_snapshot=args.from_snapshot,
-    )
+    received: list[int] = []
+    try:
+        with interruptible() as received:
+            runs, statuses = run_study(
+                args.study, args.methods, args.domains, args.tasks, args.seeds, settings,
+                pretrain_seed=args.pretrain_seed, address=args.address, workers=args.workers,
+                cpus_per_run=args.cpus_per_run, gpus_per_run=args.gpus_per_run, max_retries=args.max_retries,
+                progress_bar=not args.no_progress, from_snapshot=args.from_snapshot, pairing=args.pairing,
+            )
+    except KeyboardInterrupt:
+        signum = received[0] if received else signal.SIGINT
+        print(f"sb3-cic study: interrupted ({signal.Signals(signum).name}); its runs are stopped and keep their last "
+              "checkpoint: run the same command to resume", file=sys.stderr)
+        return INTERRUPTED_CODES[signum]
     report, finished = status_report(args.study)
     print(report)
     print(f"{len(statuses)} runs ran now; report: sb3-cic report {args.study}")

@@ -3,14 +3,22 @@
 Each run is one Ray task with its resources (``num_cpus``, ``num_gpus``: ``0.25`` puts four runs on a GPU)
 and ``max_retries`` (Ray starts it again when its worker dies; the run resumes from its checkpoint). A
 fine-tuning task takes its pre-training task's result as an argument, so Ray releases it as soon as the
-pre-training is done. A run that raises is recorded in its folder (``error.txt``) and returns a failed status:
-the other runs go on. No queue or retry loop of our own: that is Ray's work.
+pre-training is done. A run that raises is recorded in its folder (``error.txt``, where the folder can be
+written) and returns a failed status: the other runs go on. No queue or retry loop of our own: that is Ray's work.
+
+One command drives a study folder at a time (:class:`~sb3_cic.study.record.StudyLock`). Interrupted (Ctrl-C,
+SIGTERM: :class:`KeyboardInterrupt`), the command stops its runs before it ends (:func:`stop_runs`): no process of
+it writes in the folder afterwards, and the same command resumes the study.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+import os
+import signal
+import socket
+import time
 import traceback
 from pathlib import Path
 from typing import Any, Sequence
@@ -19,43 +27,53 @@ from tqdm.auto import tqdm
 
 from sb3_cic import protocol
 from sb3_cic.common.arguments import check_argument
-from sb3_cic.protocol import Settings, check_study_settings, record_study_settings
+from sb3_cic.protocol import Settings, check_study_settings, record_study_settings, run_record
 from sb3_cic.study.checkpoint import RunFolder
-from sb3_cic.study.graph import Run, build_graph, check_study, record_runs, settings_use
+from sb3_cic.study.graph import Run, alive, build_graph, check_study, record_runs, settings_use
+from sb3_cic.study.record import Pairing, StudyLock, check_run_settings, resolve_pairing
 
 
-def execute(
-    study: str, run: Run, settings: Settings, pretrain_seed: int, dependency: dict[str, Any] | None = None
-) -> dict[str, Any]:
+def execute(study: str, run: Run, settings: Settings, dependency: dict[str, Any] | None = None) -> dict[str, Any]:
     """Run ``run`` in this process (the body of a Ray task); record a failure in its folder instead of raising.
 
     :param study: study folder (absolute: workers may have another working directory)
     :param run: the run
     :param settings: the study's settings
-    :param pretrain_seed: the study's pre-training seed
     :param dependency: the status its pre-training's task returned (a failed one fails this run too)
     :return: ``{"run": str(run), "state": "done" | "failed", "error": ...}``
     """
-    folder = RunFolder(run.folder(study))
     try:
         if dependency is not None and dependency["state"] != "done":
             raise RuntimeError(f"its pre-training failed: {dependency['error']}")
         if run.task is None:
-            protocol.pretrain(study, run.method, run.domain, settings, seed=pretrain_seed)
+            protocol.pretrain(study, run.method, run.domain, settings, seed=run.seed, paired=not run.shared)
         else:
             protocol.finetune(study, run.method, run.domain, run.task, run.seed, settings, snapshot=run.snapshot,
-                              from_scratch=run.from_scratch)
+                              from_scratch=run.from_scratch, paired=not run.shared)
     except Exception as error:  # recorded; the study goes on
-        folder.fail(traceback.format_exc())
-        return {"run": str(run), "state": "failed", "error": f"{type(error).__name__}: {error}"}
+        return failed(study, run, f"{type(error).__name__}: {error}", traceback.format_exc())
     return {"run": str(run), "state": "done", "error": None}
+
+
+def failed(study: str | Path, run: Run, error: str, details: str) -> dict[str, Any]:
+    """Record ``run`` as failed in its folder (``error.txt``) where the folder can be written; return its status.
+
+    :param study: study folder
+    :param run: the run
+    :param error: one line: what failed
+    :param details: the traceback
+    """
+    try:
+        RunFolder(run.folder(study)).fail(details)
+    except OSError as write_error:  # the folder cannot be written: the status says it, the study goes on
+        error += f" (not recorded in its folder: {type(write_error).__name__}: {write_error})"
+    return {"run": str(run), "state": "failed", "error": error}
 
 
 def run_graph(
     study: str | Path,
     runs: Sequence[Run],
     settings: Settings,
-    pretrain_seed: int = 0,
     cpus_per_run: float = 1,
     gpus_per_run: float = 0,
     max_retries: int = 3,
@@ -64,10 +82,11 @@ def run_graph(
     """Run ``runs`` (pre-trainings before their fine-tunings, as :func:`~sb3_cic.study.graph.build_graph` orders
     them) as Ray tasks on the Ray instance this process is connected to; return each run's status.
 
+    Interrupted (:class:`KeyboardInterrupt`), it cancels the runs' tasks, killing their workers, and raises.
+
     :param study: study folder (on a cluster: storage that every node sees)
     :param runs: the runs still to do
     :param settings: the study's settings (``num_threads`` None: ``cpus_per_run`` torch threads per run)
-    :param pretrain_seed: seed of the pre-trainings
     :param cpus_per_run: CPUs of a run's task
     :param gpus_per_run: GPUs of a run's task (a fraction shares a GPU)
     :param max_retries: times Ray starts a run again after its worker died
@@ -82,28 +101,55 @@ def run_graph(
     task = ray.remote(execute).options(num_cpus=cpus_per_run, num_gpus=gpus_per_run, max_retries=max_retries)
     refs: dict[Run, Any] = {}
     for run in runs:
-        dependency = run.dependency(pretrain_seed)
-        refs[run] = task.remote(study, run, settings, pretrain_seed, refs.get(dependency) if dependency else None)
+        dependency = run.dependency()
+        refs[run] = task.remote(study, run, settings, refs.get(dependency) if dependency else None)
     names = {ref: run for run, ref in refs.items()}
     statuses = []
     pending = list(refs.values())
-    with tqdm(total=len(pending), desc="runs", unit="run", disable=not progress_bar) as bar:
-        while pending:
-            ready, pending = ray.wait(pending, num_returns=1)
-            for ref in ready:
-                run = names[ref]
-                try:
-                    status = ray.get(ref)
-                except ray.exceptions.RayError as error:  # its worker died more than max_retries times
-                    RunFolder(run.folder(study)).fail(f"Ray gave up on the run:\n{error}\n")
-                    status = {"run": str(run), "state": "failed", "error": f"{type(error).__name__}: {error}"}
-                statuses.append(status)
-                bar.update(1)
-                failed = sum(s["state"] != "done" for s in statuses)
-                bar.set_postfix(failed=failed, refresh=False)
-                if status["state"] != "done":
-                    bar.write(f"failed: {status['run']}: {status['error']}")
+    try:
+        with tqdm(total=len(pending), desc="runs", unit="run", disable=not progress_bar) as bar:
+            while pending:
+                ready, pending = ray.wait(pending, num_returns=1)
+                for ref in ready:
+                    run = names[ref]
+                    try:
+                        status = ray.get(ref)
+                    except ray.exceptions.RayError as error:  # its worker died more than max_retries times
+                        status = failed(study, run, f"{type(error).__name__}: {error}", f"Ray gave up on the run:\n{error}\n")
+                    statuses.append(status)
+                    bar.update(1)
+                    bar.set_postfix(failed=sum(s["state"] != "done" for s in statuses), refresh=False)
+                    if status["state"] != "done":
+                        bar.write(f"failed: {status['run']}: {status['error']}")
+    except KeyboardInterrupt:
+        for ref in pending:
+            ray.cancel(ref, force=True, recursive=True)
+        raise
     return statuses
+
+
+def stop_runs(study: str | Path, runs: Sequence[Run], since: float, grace_s: float = 10.0) -> None:
+    """Make sure that no process of this host still runs one of ``runs`` for a command started at ``since``: each
+    run folder's ``progress.json`` names the process that runs it (its pid, updated at each checkpoint); one still
+    alive after ``grace_s`` seconds (Ray stops its workers when it shuts down) is killed, by its pid.
+
+    :param study: study folder
+    :param runs: the runs the command started
+    :param since: when the command started (``time.time()``): older ``progress.json`` are another command's
+    :param grace_s: seconds given to the processes to end
+    """
+    here = socket.gethostname()
+    pids = set()
+    for run in runs:
+        progress = RunFolder(run.folder(study)).read_progress() or {}
+        if progress.get("host") == here and progress.get("updated", 0) >= since and progress.get("pid") != os.getpid():
+            pids.add(int(progress["pid"]))
+    deadline = time.monotonic() + grace_s
+    while any(alive(pid) for pid in pids) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    for pid in pids:
+        if alive(pid):
+            os.kill(pid, signal.SIGKILL)
 
 
 def start_ray(
@@ -121,9 +167,12 @@ def start_ray(
     :param cpus_per_run: CPUs per run (the local instance has ``workers * cpus_per_run``)
     :param gpus_per_run: GPUs per run (the local instance has ``workers * gpus_per_run``, rounded up)
     :param log_to_driver: show the workers' output here
+
+    The process's SIGTERM handler is kept (``ray.init`` installs its own).
     """
     import ray
 
+    sigterm = signal.getsignal(signal.SIGTERM)
     if address:
         ray.init(address=address, log_to_driver=log_to_driver)
     else:
@@ -133,6 +182,8 @@ def start_ray(
             include_dashboard=False,
             log_to_driver=log_to_driver,
         )
+    if sigterm is not None:  # Ray's driver aborts on SIGTERM with a stack dump: the command's own handler stays
+        signal.signal(signal.SIGTERM, sigterm)
 
 
 def run_study(
@@ -142,7 +193,7 @@ def run_study(
     tasks: Sequence[str] | None,
     seeds: Sequence[int],
     settings: Settings,
-    pretrain_seed: int = 0,
+    pretrain_seed: int | None = None,
     address: str | None = None,
     workers: int = 1,
     cpus_per_run: float = 1,
@@ -150,12 +201,15 @@ def run_study(
     max_retries: int = 3,
     progress_bar: bool = True,
     from_snapshot: int | None = None,
+    pairing: str | None = None,
 ) -> tuple[list[Run], list[dict[str, Any]]]:
     """``sb3-cic study``: build the job graph, check it against the study folder, run what is left on Ray.
 
-    Every bad input (unknown method, domain or task, a folder made with other settings, a corrupt or lost
-    checkpoint, a missing snapshot, bad resources) is a ``ValueError`` before anything is written or run.
-    Without ``address`` and without a Ray instance in this process, a local one is started (and stopped).
+    Every bad input (unknown method, domain or task, a folder or a run folder made with other settings, another
+    pairing, a damaged ``study.json``, ``result.json`` or ``eval.csv``, a corrupt or lost checkpoint, a missing
+    snapshot, bad resources, another command driving the folder) is a ``ValueError`` before anything is written or
+    run. Without ``address`` and without a Ray instance in this process, a local one is started (and stopped).
+    Interrupted (:class:`KeyboardInterrupt`), the runs are stopped (:func:`stop_runs`) before it raises.
 
     :param study: study folder
     :param methods: rl-zoo names or ``["all"]``
@@ -163,7 +217,7 @@ def run_study(
     :param tasks: tasks (None: each domain's)
     :param seeds: fine-tuning seeds
     :param settings: scale, evaluation and checkpoint settings
-    :param pretrain_seed: seed of the pre-trainings
+    :param pretrain_seed: seed of shared pre-training (given alone: ``pairing="shared"``)
     :param address: address of a running Ray cluster
     :param workers: runs at a time of a local Ray instance
     :param cpus_per_run: CPUs of each run
@@ -172,6 +226,8 @@ def run_study(
     :param progress_bar: show a progress bar over the runs
     :param from_snapshot: fine-tune from the pre-training's snapshot at this step (one of ``settings.snapshots``;
         None: the final one); the runs are ``cic@<step>`` in the study's folders and reports
+    :param pairing: ``paired``, ``shared`` or None: the study's (a new study: ``paired``;
+        :func:`~sb3_cic.study.record.resolve_pairing`)
     :return: the command's runs and the statuses of those that ran now
     """
     import ray
@@ -184,21 +240,42 @@ def run_study(
     if from_snapshot is not None and (from_snapshot not in settings.snapshots or from_snapshot == settings.pretrain_steps):
         raise ValueError(f"fine-tuning from the snapshot at {from_snapshot} steps needs it among the intermediate "
                          f"snapshots (--snapshots {' '.join(map(str, settings.snapshots))}); the final one is the default")
-    runs = build_graph(methods, domains, tasks, seeds, pretrain_seed, from_snapshot)
+    chosen = resolve_pairing(study, pairing, pretrain_seed)
+    runs = build_graph(methods, domains, tasks, seeds, chosen, from_snapshot)
     protocol.check_learning_starts(runs, settings)
-    check_study_settings(study, settings, pretrain_seed, **settings_use(runs))
-    todo = check_study(study, runs, pretrain_seed)
-    record_study_settings(study, settings, pretrain_seed, **settings_use(runs))
-    record_runs(study, runs)
-    for run in runs:  # a done run killed just after writing its result.json: what it left is deleted
-        RunFolder(run.folder(study)).clean()
-    if not todo:
-        return runs, []
-    started = not ray.is_initialized()
-    if started:
-        start_ray(address, workers, cpus_per_run, gpus_per_run, log_to_driver=settings.verbose > 0)
-    try:
-        return runs, run_graph(study, todo, settings, pretrain_seed, cpus_per_run, gpus_per_run, max_retries, progress_bar)
-    finally:
+    check_study_settings(study, settings, chosen, **settings_use(runs))
+    check_runs_settings(study, runs, settings, chosen)
+    todo = check_study(study, runs)
+    with StudyLock(study):
+        record_study_settings(study, settings, chosen, **settings_use(runs))
+        record_runs(study, runs)
+        for run in runs:  # a done run killed just after writing its result.json: what it left is deleted
+            RunFolder(run.folder(study)).clean()
+        if not todo:
+            return runs, []
+        started, since = not ray.is_initialized(), time.time()
         if started:
-            ray.shutdown()
+            start_ray(address, workers, cpus_per_run, gpus_per_run, log_to_driver=settings.verbose > 0)
+        try:
+            return runs, run_graph(study, todo, settings, cpus_per_run, gpus_per_run, max_retries, progress_bar)
+        except KeyboardInterrupt:
+            if started:
+                ray.shutdown()
+            stop_runs(study, todo, since)
+            raise
+        finally:
+            if started and ray.is_initialized():
+                ray.shutdown()
+
+
+def check_runs_settings(study: str | Path, runs: Sequence[Run], settings: Settings, pairing: Pairing) -> None:
+    """``ValueError`` (one line) if a run folder of ``runs`` records other settings than the command's
+    (:func:`~sb3_cic.study.record.check_run_settings`; the default yaml of each method).
+
+    :param study: study folder
+    :param runs: the command's runs
+    :param settings: the command's settings
+    :param pairing: the command's pairing
+    """
+    for run in runs:
+        check_run_settings(run.folder(study), run_record(run.row(), settings, run.from_scratch, pairing))

@@ -3,18 +3,21 @@ the study folder before anything runs, and the status of each run read back from
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import socket
 from collections import Counter
-from dataclasses import astuple, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
 
 from envs.tasks import DOMAIN_TASKS
 from sb3_cic import zoo
 from sb3_cic.constants import EXPERT_SCORES
+from sb3_cic.evaluation import read_run_result
 from sb3_cic.study.checkpoint import RunFolder, write_json
+from sb3_cic.study.record import Pairing, study_record
 from sb3_cic.study.layout import (
     check_snapshot,
     finetune_dir,
@@ -28,8 +31,8 @@ from sb3_cic.study.layout import (
 
 #: the URLB domains (those of the expert-scored tasks): ``--domains all``
 URLB_DOMAINS: tuple[str, ...] = tuple(sorted({task.split("_")[0] for task in EXPERT_SCORES}))
-#: the states :func:`run_state` tells apart
-STATES: tuple[str, ...] = ("done", "running", "failed", "pending")
+#: the states :func:`run_state` tells apart (``damaged``: a result that cannot be read or does not hold together)
+STATES: tuple[str, ...] = ("done", "running", "failed", "pending", "damaged")
 
 
 def all_methods() -> list[str]:
@@ -49,8 +52,14 @@ class Run:
     :param method: rl-zoo name of the method (``cic``...; ``ddpg`` fine-tunes from scratch)
     :param domain: URLB domain
     :param task: URLB task name (``walker_flip``), None for a pre-training
-    :param seed: the run's seed (a pre-training's: the study's pre-training seed)
+    :param seed: the run's seed (a pre-training's: its pre-training seed)
     :param snapshot: pre-training step of the snapshot a fine-tuning starts from (None: the final one)
+    :param pretrain_seed: the seed of the pre-training a fine-tuning starts from (None: a pre-training, or a run
+        from scratch)
+    :param shared: a run of a study with shared pre-training (:class:`~sb3_cic.study.record.Pairing`): its
+        pre-training folder has no seed in its name (:func:`~sb3_cic.study.layout.pretrain_dir`)
+
+    ``study.json`` lists the first five fields (:meth:`row`); the pairing is the study's.
     """
 
     method: str
@@ -58,6 +67,23 @@ class Run:
     task: str | None
     seed: int
     snapshot: int | None = None
+    pretrain_seed: int | None = None
+    shared: bool = False
+
+    @classmethod
+    def of_row(cls, row: Sequence[Any], pairing: Pairing | None) -> Run:
+        """The run of a ``study.json`` row (4 or 5 fields) in a study with ``pairing`` (None: none pre-trained)."""
+        run = cls(*row)
+        shared = pairing is not None and not pairing.paired
+        if run.task is None:
+            return dataclasses.replace(run, shared=shared)
+        if run.from_scratch or pairing is None:
+            return run
+        return dataclasses.replace(run, pretrain_seed=pairing.pretrain_seed(run.seed), shared=shared)
+
+    def row(self) -> list[Any]:
+        """The run as ``study.json`` lists it: ``[method, domain, task or None, seed, snapshot or None]``."""
+        return [self.method, self.domain, self.task, self.seed, self.snapshot]
 
     @property
     def kind(self) -> str:
@@ -73,7 +99,7 @@ class Run:
         """The run's folder in ``study`` (:mod:`sb3_cic.study.layout`: ``cic@100000`` for a fine-tuning from the
         snapshot at 100,000 steps)."""
         if self.task is None:
-            return pretrain_dir(study, self.method, self.domain)
+            return pretrain_dir(study, self.method, self.domain, None if self.shared else self.seed)
         return finetune_dir(study, self.label, self.task, self.seed)
 
     @property
@@ -81,14 +107,16 @@ class Run:
         """The method's name in the study's folders and reports (``cic``, ``cic@100000``)."""
         return run_label(self.method, self.snapshot)
 
-    def dependency(self, pretrain_seed: int) -> Run | None:
+    def dependency(self) -> Run | None:
         """The pre-training a fine-tuning starts from (None for a pre-training or a run from scratch)."""
-        if self.task is None or self.from_scratch:
+        if self.task is None or self.pretrain_seed is None:
             return None
-        return Run(self.method, self.domain, None, pretrain_seed)
+        return Run(self.method, self.domain, None, self.pretrain_seed, shared=self.shared)
 
     def __str__(self) -> str:
-        return f"pretrain {self.method} {self.domain}" if self.task is None else f"{self.label} {self.task} seed {self.seed}"
+        if self.task is None:
+            return f"pretrain {self.method} {self.domain}" + ("" if self.shared else f" seed {self.seed}")
+        return f"{self.label} {self.task} seed {self.seed}"
 
 
 def build_graph(
@@ -96,7 +124,7 @@ def build_graph(
     domains: Sequence[str],
     tasks: Sequence[str] | None,
     seeds: Sequence[int],
-    pretrain_seed: int = 0,
+    pairing: Pairing | int = Pairing("paired"),
     from_snapshot: int | None = None,
 ) -> list[Run]:
     """The runs of a study command, each pre-training before the fine-tunings that depend on it.
@@ -108,10 +136,12 @@ def build_graph(
     :param tasks: tasks (``flip`` or ``walker_flip``: a short name applies to every domain that has it); None:
         each domain's tasks
     :param seeds: fine-tuning seeds
-    :param pretrain_seed: seed of the pre-trainings
+    :param pairing: which pre-training each fine-tuning starts from (paired: one per seed; an int: shared
+        pre-training with that seed)
     :param from_snapshot: fine-tune from the snapshot at this pre-training step (None: the final one); runs
         from scratch ignore it
     """
+    pairing = Pairing("shared", pairing) if isinstance(pairing, int) else pairing
     methods = all_methods() if list(methods) == ["all"] else [m.lower() for m in methods]
     domains = list(URLB_DOMAINS) if list(domains) == ["all"] else list(domains)
     for method in methods:
@@ -140,10 +170,13 @@ def build_graph(
             names = task_names[domain] if tasks else [task_name(domain, t) for t in DOMAIN_TASKS[domain]]
             if not names:
                 continue
-            finetunes = [Run(method, domain, name, seed) for name in names for seed in seeds]
-            if finetunes[0].dependency(pretrain_seed) is not None:
-                runs.append(Run(method, domain, None, pretrain_seed))
-                finetunes = [Run(method, domain, name, seed, from_snapshot) for name in names for seed in seeds]
+            rows = [[method, domain, name, seed, from_snapshot] for name in names for seed in seeds]
+            finetunes = [Run.of_row(row, pairing) for row in rows]
+            if finetunes[0].from_scratch:
+                finetunes = [Run(method, domain, name, seed) for name in names for seed in seeds]
+            else:
+                runs.extend(Run.of_row([method, domain, None, s, None], pairing)
+                            for s in sorted({pairing.pretrain_seed(seed) for seed in seeds}))
             runs.extend(finetunes)
     return runs
 
@@ -157,29 +190,32 @@ def settings_use(runs: Sequence[Run]) -> dict[str, Any]:
     return {"pretrained": any(run.task is None for run in runs), "configs": {run.method: None for run in runs}}
 
 
-def check_study(study: str | Path, runs: Sequence[Run], pretrain_seed: int) -> list[Run]:
+def check_study(study: str | Path, runs: Sequence[Run]) -> list[Run]:
     """Check the study folder's runs against a command, before anything runs; return the runs still to do.
 
-    ``ValueError`` when an unfinished run has a corrupt checkpoint or has lost one, or when a finished
-    pre-training lacks the snapshot its fine-tunings need (the settings of ``study.json``: see
-    :func:`~sb3_cic.protocol.check_study_settings`). Writes nothing.
+    ``ValueError`` (one line) when a finished run's ``result.json`` or ``eval.csv`` is damaged or disagree
+    (:func:`~sb3_cic.evaluation.read_run_result`), when an unfinished run has a corrupt checkpoint or has lost one,
+    or when a pre-training lacks a snapshot that a fine-tuning still to do needs (the settings: see
+    :func:`~sb3_cic.protocol.check_study_settings` and :func:`~sb3_cic.study.record.check_run_settings`). Writes
+    nothing.
 
     :param study: study folder
     :param runs: the command's runs (:func:`build_graph`)
-    :param pretrain_seed: the command's pre-training seed
     """
     todo = []
     for run in runs:
         folder = RunFolder(run.folder(study))
         if folder.done:
-            if run.task is None:  # the snapshots its fine-tunings start from
-                final = json.loads(folder.result.read_text())["steps"]
-                needed = {final if r.snapshot is None else r.snapshot for r in runs if r.dependency(pretrain_seed) == run}
-                for step in sorted(needed or {final}):
-                    check_snapshot(snapshot_file(folder.path, step))
+            read_run_result(folder.path, finetune=run.task is not None)
             continue
         folder.read_meta()  # a ValueError for a corrupt or missing checkpoint
         todo.append(run)
+    for run in runs:  # the snapshots the fine-tunings still to do start from
+        if run.task is None and run not in todo:
+            final = read_run_result(run.folder(study), finetune=False)["steps"]
+            needed = {final if r.snapshot is None else r.snapshot for r in todo if r.dependency() == run}
+            for step in sorted(needed):
+                check_snapshot(snapshot_file(run.folder(study), step))
     return todo
 
 
@@ -192,42 +228,54 @@ def record_runs(study: str | Path, runs: Sequence[Run]) -> None:
     """
     path = study_file(study)
     data = json.loads(path.read_text())
-    listed = {astuple(Run(*run)) for run in data.get("runs", [])}  # rows of 4 (before snapshot) or 5
-    listed |= {astuple(run) for run in runs}
-    data["runs"] = sorted(listed, key=lambda r: (r[0], r[1], r[2] or "", r[3], r[4] or 0))
+    listed = {tuple(Run(*run).row()) for run in data.get("runs", [])}  # rows of 4 (before snapshot) or 5
+    listed |= {tuple(run.row()) for run in runs}
+    data["runs"] = [list(r) for r in sorted(listed, key=lambda r: (r[0], r[1], r[2] or "", r[3], r[4] or 0))]
     write_json(path, data)
 
 
-def study_runs(study: str | Path) -> list[Run]:
-    """The runs listed in ``study.json`` (:func:`record_runs`); ``ValueError`` if the folder is no study.
+def study_runs(study: str | Path) -> tuple[list[Run], Pairing | None]:
+    """The runs listed in ``study.json`` (:func:`record_runs`; a lost ``study.json``: rebuilt from the run folders)
+    and the study's pairing; ``ValueError`` if the folder is no study or its ``study.json`` is damaged.
 
     :param study: study folder
     """
-    path = study_file(study)
-    if not path.is_file():
+    data = study_record(study)
+    if data is None:
         raise ValueError(f"{study} is not a study folder (no study.json)")
-    return [Run(*run) for run in json.loads(path.read_text()).get("runs", [])]
+    pairing = Pairing.from_record(data)
+    return [Run.of_row(row, pairing) for row in data.get("runs", [])], pairing
 
 
-def _alive(pid: int) -> bool:
+def alive(pid: int) -> bool:
+    """Whether the process ``pid`` of this host runs (a zombie, ended but not yet reaped, does not)."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
         return False
     except PermissionError:
         return True
-    return True
+    try:
+        with open(f"/proc/{pid}/stat") as file:
+            return file.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except (OSError, IndexError):
+        return True
 
 
-def run_state(folder: RunFolder) -> tuple[str, dict[str, Any]]:
+def run_state(folder: RunFolder, kind: str = "finetune") -> tuple[str, dict[str, Any]]:
     """The state of a run (one of :data:`STATES`) and what its folder says: ``checkpoint_step``, ``error``...
 
     :param folder: the run's folder
+    :param kind: ``finetune`` or ``pretrain`` (what its ``result.json`` must hold)
 
     ``running``: its ``progress.json`` names a live process (on this host) or another host; a run whose process
     is gone is ``pending`` (it resumes from its checkpoint when started again).
     """
     if folder.done:
+        try:
+            read_run_result(folder.path, finetune=kind == "finetune")
+        except ValueError as error:
+            return "damaged", {"checkpoint_step": "none", "error": str(error)}
         return "done", {}
     progress = folder.read_progress() or {}
     try:
@@ -240,7 +288,7 @@ def run_state(folder: RunFolder) -> tuple[str, dict[str, Any]]:
         return "failed", {**info, "error": lines[-1] if lines else "", "traceback": str(folder.error)}
     if progress:
         here = progress.get("host") == socket.gethostname()
-        if not here or _alive(int(progress.get("pid", -1))):
+        if not here or alive(int(progress.get("pid", -1))):
             return "running", {**info, "host": progress.get("host"), "pid": progress.get("pid")}
     return "pending", info
 
@@ -250,23 +298,26 @@ def status_report(study: str | Path) -> tuple[str, bool]:
 
     :param study: study folder
     """
-    runs = study_runs(study)
+    runs, pairing = study_runs(study)
     counts: dict[tuple[str, str], Counter] = {}
-    unfinished, failed = [], []
+    unfinished, failed, damaged = [], [], []
     for run in runs:
         folder = RunFolder(run.folder(study))
-        state, info = run_state(folder)
+        state, info = run_state(folder, run.kind)
         counts.setdefault((run.method, run.domain), Counter())[state] += 1
-        if state != "done":
+        if state not in ("done", "damaged"):
             where = f" on {info['host']} (pid {info['pid']})" if state == "running" else ""
             unfinished.append(f"  {run}: {state}{where}, last checkpoint at step {info['checkpoint_step']}")
         if state == "failed":
             failed.append(f"  {run}: {info['error']}\n    traceback: {info['traceback']}")
+        if state == "damaged":
+            damaged.append(f"  {run}: {info['error']}")
     total = Counter()
     for counter in counts.values():
         total.update(counter)
     counted = f"{len(runs)} run{'' if len(runs) == 1 else 's'}"
-    lines = [f"{study}: {counted}, " + ", ".join(f"{total[s]} {s}" for s in STATES), ""]
+    lines = [f"{study}: {counted}, " + ", ".join(f"{total[s]} {s}" for s in STATES)]
+    lines += [f"pre-training: {pairing.describe() if pairing else 'none yet (runs from scratch only)'}", ""]
     lines.append(f"| method | domain | {' | '.join(STATES)} |")
     lines.append("|---|---|" + "---:|" * len(STATES))
     for (method, domain), counter in sorted(counts.items()):
@@ -275,4 +326,6 @@ def status_report(study: str | Path) -> tuple[str, bool]:
         lines += ["", "Unfinished runs:", *unfinished]
     if failed:
         lines += ["", "Failed runs:", *failed]
+    if damaged:
+        lines += ["", "Damaged runs (not counted as done):", *damaged]
     return "\n".join(lines), total["done"] == len(runs)

@@ -2,13 +2,21 @@
 
 One study lives in one folder::
 
-    <study>/study.json                      the settings the study was made with, and its runs
-    <study>/pretrain/<method>_<domain>/snapshot_<steps>.zip, result.json
-    <study>/finetune/<label>/<task>/seed_<k>/eval.csv, result.json
+    <study>/study.json                      the settings the study was made with, its pairing, and its runs
+    <study>/study.lock                      held by the command that drives the study (one at a time)
+    <study>/pretrain/<method>_<domain>/snapshot_<steps>.zip, result.json, settings.json
+    <study>/pretrain/<method>_<domain>_seed<s>/...      (paired studies: the pre-training of seed s > 0)
+    <study>/finetune/<label>/<task>/seed_<k>/eval.csv, result.json, settings.json
     <study>/tensorboard/...
 
-and, in a run folder while the run is unfinished, ``checkpoint.zip`` and ``progress.json`` (``error.txt`` if it
-raised; :class:`~sb3_cic.study.checkpoint.RunFolder`). ``<label>`` is the method name when fine-tuning from the
+Pre-training folders (:func:`pretrain_dir`): a study with shared pre-training (every fine-tuning seed from one
+pre-training seed, as the CIC code; every study made before pairing existed) has one pre-training per method and
+domain, ``<method>_<domain>``, whatever its seed (its ``result.json`` records it). A paired study (URLB: fine-tuning
+seed s from pre-training seed s) has one per seed: ``<method>_<domain>`` for seed 0, the same run as a shared
+seed-0 pre-training, and ``<method>_<domain>_seed<s>`` for the others.
+
+Each run folder records the settings it was made with (``settings.json``); while the run is unfinished it holds
+``checkpoint.zip`` and ``progress.json`` (``error.txt`` if it raised; :class:`~sb3_cic.study.checkpoint.RunFolder`). ``<label>`` is the method name when fine-tuning from the
 final snapshot, ``<method>@<steps>`` from another snapshot (:func:`run_label`); ``<task>`` is the URLB task name
 (``walker_flip``, :func:`task_name`). The run code (:mod:`sb3_cic.protocol`) and the job graph
 (:mod:`sb3_cic.study.graph`) both read the layout here.
@@ -25,6 +33,11 @@ from envs.tasks import DOMAIN_TASKS
 def study_file(study: str | Path) -> Path:
     """``<study>/study.json``: the study's settings and runs."""
     return Path(study) / "study.json"
+
+
+def lock_file(study: str | Path) -> Path:
+    """``<study>/study.lock``: locked by the command that drives the study."""
+    return Path(study) / "study.lock"
 
 
 def task_name(domain: str, task: str) -> str:
@@ -46,9 +59,20 @@ def run_label(method: str, snapshot: int | None) -> str:
     return method if snapshot is None else f"{method}@{snapshot}"
 
 
-def pretrain_dir(study: str | Path, method: str, domain: str) -> Path:
-    """Folder of the pre-training of ``method`` on ``domain``."""
-    return Path(study) / "pretrain" / f"{method}_{domain}"
+def pretrain_dir(study: str | Path, method: str, domain: str, seed: int | None = None) -> Path:
+    """Folder of the pre-training of ``method`` on ``domain``.
+
+    :param seed: the seed of a paired study's pre-training (``<method>_<domain>`` for 0, ``<method>_<domain>_seed<s>``
+        for the others); None: a shared-pre-training study's one pre-training (``<method>_<domain>``)
+    """
+    suffix = "" if not seed else f"_seed{seed}"
+    return Path(study) / "pretrain" / f"{method}_{domain}{suffix}"
+
+
+def run_folders(study: str | Path) -> list[Path]:
+    """The run folders under ``study`` (pre-trainings and fine-tunings), whatever their state."""
+    study = Path(study)
+    return sorted(p for p in [*study.glob("pretrain/*"), *study.glob("finetune/*/*/seed_*")] if p.is_dir())
 
 
 def snapshot_file(folder: str | Path, step: int) -> Path:

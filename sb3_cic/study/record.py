@@ -1,0 +1,279 @@
+"""What a study folder records, and how every command checks it before it trusts it.
+
+* the **pairing** of fine-tunings with pre-trainings (:class:`Pairing`): URLB's (fine-tuning seed s from
+  pre-training seed s, the default of new studies) or the CIC code's shared pre-training (every fine-tuning seed
+  from one pre-training seed: every study made before pairing existed, whose ``study.json`` has a
+  ``pretrain_seed`` and no ``pairing``);
+* ``study.json`` (:func:`read_study_record`): its content checked, a damaged one named in one line; a lost one
+  rebuilt from the run folders' ``settings.json`` (:func:`rebuild_study_record`), or refused in one line when a run
+  folder does not record its settings;
+* each run folder's ``settings.json`` (:func:`check_run_settings`): the settings the run was made with, checked
+  against every command that meets the run;
+* the lock (:class:`StudyLock`): one command drives a study folder at a time.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import json
+import os
+import socket
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import IO, Any
+
+from sb3_cic.study.checkpoint import write_json
+from sb3_cic.study.layout import lock_file, run_folders, study_file
+
+#: the pairings of a study: ``paired`` (URLB's) and ``shared`` (the CIC code's)
+PAIRINGS: tuple[str, ...] = ("paired", "shared")
+#: the file of a run folder that records the settings it was made with
+RUN_SETTINGS = "settings.json"
+
+
+@dataclass(frozen=True)
+class Pairing:
+    """Which pre-training each fine-tuning of a study starts from.
+
+    :param mode: ``paired``: fine-tuning seed s from pre-training seed s (URLB's ``finetune.py``); ``shared``: every
+        fine-tuning seed from the pre-training of seed ``seed`` (the CIC code release)
+    :param seed: the pre-training seed of a ``shared`` study (None for ``paired``)
+    """
+
+    mode: str
+    seed: int | None = None
+
+    def __post_init__(self) -> None:
+        if self.mode not in PAIRINGS:
+            raise ValueError(f"unknown pairing {self.mode!r}; known: {list(PAIRINGS)}")
+        if (self.mode == "shared") != (isinstance(self.seed, int) and not isinstance(self.seed, bool) and self.seed >= 0):
+            raise ValueError(f"a shared pairing needs a pre-training seed >= 0 and a paired one none, got {self.seed!r}")
+
+    @property
+    def paired(self) -> bool:
+        """Whether fine-tuning seed s starts from pre-training seed s."""
+        return self.mode == "paired"
+
+    def pretrain_seed(self, seed: int) -> int:
+        """The pre-training seed of fine-tuning seed ``seed``."""
+        return seed if self.paired else int(self.seed)  # type: ignore[arg-type]
+
+    def describe(self) -> str:
+        """``paired (fine-tuning seed s from pre-training seed s)`` or ``shared (pre-training seed 0 for every
+        fine-tuning seed)``."""
+        if self.paired:
+            return "paired (fine-tuning seed s from pre-training seed s, as URLB)"
+        return f"shared (pre-training seed {self.seed} for every fine-tuning seed, as the CIC code)"
+
+    def record(self) -> dict[str, Any]:
+        """What ``study.json`` records of it."""
+        return {"pairing": self.mode, **({} if self.paired else {"pretrain_seed": self.seed})}
+
+    @classmethod
+    def from_record(cls, data: dict[str, Any]) -> Pairing | None:
+        """The pairing ``study.json`` records (one made before pairing existed: shared, with its ``pretrain_seed``);
+        None when no run of the study pre-trained yet."""
+        if "pairing" in data:
+            return cls(data["pairing"], data.get("pretrain_seed"))
+        if "pretrain_seed" in data:
+            return cls("shared", data["pretrain_seed"])
+        return None
+
+
+def resolve_pairing(study: str | Path, pairing: str | None = None, pretrain_seed: int | None = None) -> Pairing:
+    """The pairing of a command: the one asked for, else the study's, else ``paired`` (a new study).
+
+    ``--pretrain-seed N`` alone asks for shared pre-training with seed N. A pairing other than the study's is a
+    ``ValueError`` in one line: the two modes are not mixed in one folder by accident.
+
+    :param study: study folder
+    :param pairing: ``paired``, ``shared`` or None (the study's)
+    :param pretrain_seed: the seed of shared pre-training (None: the study's, or 0)
+    """
+    if pairing == "paired" and pretrain_seed is not None:
+        raise ValueError("--pretrain-seed is the one seed of shared pre-training; paired pre-training has one per "
+                         "fine-tuning seed: use --pairing shared --pretrain-seed N, or leave --pretrain-seed out")
+    recorded = Pairing.from_record(read_study_record(study)) if study_file(study).exists() else None
+    if pairing is None and pretrain_seed is None:
+        return recorded or Pairing("paired")
+    if pairing is None or pairing == "shared":
+        seed = pretrain_seed if pretrain_seed is not None else (recorded.seed if recorded and not recorded.paired else 0)
+        wanted = Pairing("shared", seed)
+    else:
+        wanted = Pairing(pairing)
+    if recorded is not None and recorded.mode != wanted.mode:  # (another shared seed: check_study_settings says so)
+        hint = "--pairing paired" if recorded.paired else f"--pairing shared --pretrain-seed {recorded.seed}"
+        raise ValueError(f"{study} pre-trains {recorded.describe()}; this command asks for {wanted.describe()}: "
+                         f"give {hint} (or neither option) to go on with it, or use another folder")
+    return wanted
+
+
+# study.json ----------------------------------------------------------------------------------------------
+def _check_study_data(data: Any) -> None:
+    """``ValueError`` (the reason) unless ``data`` has the form of a ``study.json``."""
+    if not isinstance(data, dict):
+        raise ValueError(f"a {type(data).__name__}, not an object")
+    if not isinstance(data.get("settings", {}), dict):
+        raise ValueError("'settings' is not an object")
+    if "pretrain_seed" in data and (not isinstance(data["pretrain_seed"], int) or data["pretrain_seed"] < 0):
+        raise ValueError(f"'pretrain_seed' {data['pretrain_seed']!r} is not an int >= 0")
+    if "pairing" in data:
+        Pairing.from_record(data)
+    confs = data.get("conf_files", {})
+    if not isinstance(confs, dict) or not all(isinstance(c, dict) and isinstance(c.get("sha256"), str) for c in confs.values()):
+        raise ValueError("'conf_files' is not an object of {file, sha256}")
+    runs = data.get("runs", [])
+    if not isinstance(runs, list):
+        raise ValueError("'runs' is not a list")
+    for row in runs:
+        if not (isinstance(row, list) and 4 <= len(row) <= 5 and isinstance(row[0], str) and isinstance(row[1], str)
+                and (row[2] is None or isinstance(row[2], str)) and isinstance(row[3], int)
+                and (len(row) == 4 or row[4] is None or isinstance(row[4], int))):
+            raise ValueError(f"the run {row!r} is not [method, domain, task or null, seed, snapshot or null]")
+
+
+def read_study_record(study: str | Path) -> dict[str, Any]:
+    """The content of ``<study>/study.json``, checked: a damaged file is a one-line ``ValueError`` naming it.
+
+    :param study: study folder (its ``study.json`` must exist)
+    """
+    path = study_file(study)
+    try:
+        data = json.loads(path.read_text())
+        _check_study_data(data)
+    except (UnicodeDecodeError, ValueError) as error:
+        raise ValueError(f"{path} is damaged ({error}); restore it from a copy, or delete it to rebuild it from "
+                         "the run folders") from None
+    return data
+
+
+def run_settings_of(folder: str | Path) -> dict[str, Any] | None:
+    """The ``settings.json`` of a run folder (None for a run made before runs recorded their settings); a damaged
+    one is a one-line ``ValueError``.
+
+    :param folder: the run folder
+    """
+    path = Path(folder) / RUN_SETTINGS
+    if not path.exists():
+        return None
+    try:
+        data = json.loads(path.read_text())
+        if not isinstance(data, dict) or not isinstance(data.get("settings"), dict) or not isinstance(data.get("run"), list):
+            raise ValueError("not an object with 'settings' and 'run'")
+    except (UnicodeDecodeError, ValueError) as error:
+        raise ValueError(f"{path} is damaged ({error}); delete the run folder {path.parent} to run the run again") from None
+    return data
+
+
+def check_run_settings(folder: str | Path, record: dict[str, Any]) -> None:
+    """``ValueError`` (one line) if the run folder records other settings than ``record``, what a command would make
+    it with (its settings and its yaml's sha256: ``settings.json``). A folder that records none is not checked.
+
+    :param folder: the run folder
+    :param record: what :func:`sb3_cic.protocol.run_record` returns for the command's run
+    """
+    recorded = run_settings_of(folder)
+    if recorded is None:
+        return
+    diff = {key: (recorded["settings"].get(key), value) for key, value in record["settings"].items()
+            if recorded["settings"].get(key) != value}
+    old_sha = (recorded.get("conf_file") or {}).get("sha256")
+    if old_sha is not None and old_sha != record["conf_file"]["sha256"]:
+        diff["conf_file (its content)"] = (recorded["conf_file"]["file"], record["conf_file"]["file"])
+    if diff:
+        raise ValueError(f"the run {folder} was made with other settings; (run, command): {diff}. "
+                         "Use the run's settings or another folder")
+
+
+def write_run_settings(folder: str | Path, record: dict[str, Any]) -> None:
+    """Record in the run folder the settings it is made with (once: a resumed run keeps its record).
+
+    :param folder: the run folder
+    :param record: :func:`sb3_cic.protocol.run_record`
+    """
+    path = Path(folder) / RUN_SETTINGS
+    if not path.exists():
+        path.parent.mkdir(parents=True, exist_ok=True)
+        write_json(path, record)
+
+
+def rebuild_study_record(study: str | Path) -> dict[str, Any] | None:
+    """The ``study.json`` of a study that lost it, from its run folders' ``settings.json`` (None: no run folder,
+    a new study); a one-line ``ValueError`` when a run folder records no settings or two disagree.
+
+    :param study: study folder
+    """
+    marks = (RUN_SETTINGS, "result.json", "checkpoint.zip", "progress.json")  # what a run writes, settings first
+    folders = [f for f in run_folders(study) if any((f / mark).exists() for mark in marks)]
+    if not folders:
+        return None
+    data: dict[str, Any] = {"settings": {}, "conf_files": {}, "runs": []}
+    for folder in folders:
+        record = run_settings_of(folder)
+        if record is None:
+            raise ValueError(f"{study_file(study)} is missing and the run {folder} does not record its settings (made "
+                             "before runs did): restore study.json from a copy, or use another folder")
+        for key, value in record["settings"].items():
+            if data["settings"].setdefault(key, value) != value:
+                raise ValueError(f"{study_file(study)} is missing and its runs disagree on {key} "
+                                 f"({data['settings'][key]!r}, {value!r} in {folder}): restore study.json from a copy")
+        method = record["run"][0]
+        data["conf_files"].setdefault(method, record["conf_file"])
+        if record.get("pairing"):
+            pairing = Pairing.from_record(record["pairing"])
+            if Pairing.from_record(data) not in (None, pairing):
+                raise ValueError(f"{study_file(study)} is missing and its runs disagree on the pairing ({folder}): "
+                                 "restore study.json from a copy")
+            data.update(record["pairing"])
+        data["runs"].append(record["run"])
+    data["runs"].sort(key=lambda r: (r[0], r[1], r[2] or "", r[3], r[4] or 0))
+    return data
+
+
+def study_record(study: str | Path) -> dict[str, Any] | None:
+    """``study.json`` checked (:func:`read_study_record`), or rebuilt from the run folders when it is lost
+    (:func:`rebuild_study_record`; not written); None for a folder with neither.
+
+    :param study: study folder
+    """
+    return read_study_record(study) if study_file(study).exists() else rebuild_study_record(study)
+
+
+# the lock ------------------------------------------------------------------------------------------------
+class StudyLock:
+    """One driver per study folder: an exclusive ``flock`` on ``<study>/study.lock``, held while the command runs.
+
+    The kernel releases the lock when its process ends, however it ends (a killed driver leaves no stuck lock).
+    The file says who holds it (host, pid, start), for the message of the command it refuses.
+
+    :param study: study folder
+    """
+
+    def __init__(self, study: str | Path) -> None:
+        self.path = lock_file(study)
+        self._file: IO[str] | None = None
+
+    def __enter__(self) -> StudyLock:
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        file = open(self.path, "a+")
+        try:
+            fcntl.flock(file, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            file.seek(0)
+            holder = file.read().strip() or "another process"
+            file.close()
+            raise ValueError(f"another command drives {self.path.parent} ({holder}); wait for it to end or stop it "
+                             "(a stopped command leaves no lock behind), then run this one again") from None
+        file.seek(0)
+        file.truncate()
+        file.write(f"pid {os.getpid()} on {socket.gethostname()}, since {time.strftime('%Y-%m-%d %H:%M:%S')}\n")
+        file.flush()
+        self._file = file
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        if self._file is not None:
+            fcntl.flock(self._file, fcntl.LOCK_UN)
+            self._file.close()
+            self._file = None
