@@ -35,7 +35,7 @@ templates_path = ["_templates"]
 exclude_patterns = ["_build"]
 
 # Markdown pages (MyST): ```{directive} fences, `(target)=` labels, heading anchors for links like
-# ``README.md#calibration-against-the-reference-code``
+# ``APPENDIX.md#calibration-against-the-reference-code``
 myst_enable_extensions = ["colon_fence", "deflist"]
 myst_heading_anchors = 4
 
