@@ -36,7 +36,7 @@ def test_fixed_is_a_registered_method_without_skills():
     from sb3_cic.study.graph import all_methods, build_graph
 
     assert "fixed" not in all_methods()  # --methods all: URLB's methods, MOSS and DDPG
-    runs = build_graph(["fixed"], ["hopper"], None, [0, 1])  # --methods fixed --domains hopper
+    runs = build_graph(["fixed"], ["hopper"], None, [0, 1], 0)  # --methods fixed --domains hopper --pretrain-seed 0
     assert [str(run) for run in runs] == ["pretrain fixed hopper", "fixed hopper_hop seed 0", "fixed hopper_hop seed 1"]
     probe = Fixed("MlpPolicy", None, _init_setup_model=False)
     assert probe.skill_prior is None and probe.fixed_reward == 1.0
