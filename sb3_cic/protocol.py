@@ -27,6 +27,7 @@ from typing import Any, ClassVar, Sequence
 import gymnasium as gym
 import numpy as np
 import torch as th
+import yaml
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.utils import set_random_seed
 
@@ -44,6 +45,7 @@ from sb3_cic.study.graph import build_graph, record_runs
 from sb3_cic.study.record import (
     Pairing,
     StudyLock,
+    changed_entries,
     check_run_settings,
     rebuild_study_record,
     resolve_pairing,
@@ -170,7 +172,9 @@ class FinetuneResult:
 
 def conf_file_record(method: str, config: str | Path | None = None) -> dict[str, Any]:
     """What ``study.json`` records of the yaml a method's runs read: the file as given (None: the default
-    ``zoo_configs/<method>.yml``) and the sha256 of its content, which :func:`check_study_settings` compares.
+    ``zoo_configs/<method>.yml``), the sha256 of its content and a sha256 of each entry as yaml reads it (anchors
+    merged, comments dropped), which :func:`check_study_settings` compares: a new comment or a new environment's
+    entry changes no run (:func:`~sb3_cic.study.record.changed_entries`).
 
     :param method: rl-zoo name of the method
     :param config: the ``--conf-file`` (None: the default)
@@ -178,7 +182,13 @@ def conf_file_record(method: str, config: str | Path | None = None) -> dict[str,
     path = Path(config) if config is not None else zoo.default_config(method)
     if not path.is_file():
         raise ValueError(f"no yaml file {path} (--conf-file)")
-    return {"file": None if config is None else str(config), "sha256": hashlib.sha256(path.read_bytes()).hexdigest()}
+    table = yaml.safe_load(path.read_text()) or {}
+    if not isinstance(table, dict):
+        raise ValueError(f"{path} is not an rl-zoo yaml (a mapping of environment ids to hyperparameters)")
+    entries = {str(key): hashlib.sha256(json.dumps(value, sort_keys=True, default=str).encode()).hexdigest()
+               for key, value in table.items()}
+    return {"file": None if config is None else str(config), "sha256": hashlib.sha256(path.read_bytes()).hexdigest(),
+            "entries": entries}
 
 
 def check_study_settings(
@@ -224,8 +234,9 @@ def check_study_settings(
         else:
             diff["pairing"] = (old_pairing.describe(), pairing.describe())
     for method, conf in wanted.get("conf_files", {}).items():
-        if method in old_confs and old_confs[method]["sha256"] != conf["sha256"]:
-            diff[f"conf_file of {method} (its content)"] = (old_confs[method]["file"], conf["file"])
+        changed = changed_entries(old_confs.get(method), conf, f"{study}/study.json ({method})")
+        if changed:
+            diff[f"conf_file of {method} (entries {', '.join(changed)})"] = (old_confs[method]["file"], conf["file"])
     if diff:
         raise ValueError(
             f"{study} was made with other settings; (study, command): {diff}. "

@@ -21,10 +21,10 @@ import pytest
 import torch as th
 
 from sb3_cic.cli import main
-from sb3_cic.protocol import Settings, run_protocol
+from sb3_cic.protocol import Settings, conf_file_record, run_protocol
 from sb3_cic.study.engine import execute
 from sb3_cic.study.graph import Run, alive, build_graph, status_report
-from sb3_cic.study.record import Pairing, StudyLock
+from sb3_cic.study.record import Pairing, StudyLock, changed_entries
 
 ROOT = Path(__file__).resolve().parents[1]
 QUADRUPED = ROOT / "docs" / "results" / "quadruped_reduced" / "runs"
@@ -95,6 +95,27 @@ def test_a_study_made_before_run_settings_and_pairing_keeps_working(quadruped: P
     assert "| icm | paired: seed 0; shared pre-training seed 0: seeds 1, 2 |" in out
     # the two modes are not mixed in one folder by accident
     assert "pre-trains shared (pre-training seed 0" in _refused(_quadruped_resume(quadruped, "--pairing", "paired"), capsys)
+
+
+def test_a_yaml_is_compared_entry_by_entry(tmp_path: Path):
+    """A comment or a new environment's entry changes no run; a changed entry is named; a record made before entries
+    were recorded (the sha256 of the whole file) warns for the default yaml and refuses a changed --conf-file."""
+    yml = tmp_path / "icm.yml"
+    yml.write_text("URLB/walker-v0: &p\n  batch_size: 256\n  tau: 0.01\nURLB/jaco-v0:\n  <<: *p\n")
+    before = conf_file_record("icm", yml)
+    yml.write_text("# a comment\nURLB/walker-v0: &p\n  tau: 0.01\n  batch_size: 256\nURLB/jaco-v0:\n  <<: *p\n"
+                   "URLB/hopper-v0:\n  <<: *p\n")
+    commented = conf_file_record("icm", yml)
+    assert commented["sha256"] != before["sha256"] and changed_entries(before, commented, "here") == []
+    yml.write_text("URLB/walker-v0: &p\n  batch_size: 256\n  tau: 0.02\nURLB/jaco-v0:\n  <<: *p\n")
+    assert changed_entries(before, conf_file_record("icm", yml), "here") == ["URLB/jaco-v0", "URLB/walker-v0"]
+
+    legacy = {"file": str(yml), "sha256": before["sha256"]}
+    assert changed_entries(legacy, conf_file_record("icm", yml), "here") == ["(the whole file)"]
+    default = conf_file_record("icm")
+    assert changed_entries({"file": None, "sha256": default["sha256"]}, default, "here") == []
+    with pytest.warns(UserWarning, match="here records the sha256 of the whole default yaml"):
+        assert changed_entries({"file": None, "sha256": "0" * 64}, default, "here") == []
 
 
 # 1. the settings of every run travel with the run ------------------------------------------------------------

@@ -19,6 +19,7 @@ import json
 import os
 import socket
 import time
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
@@ -166,6 +167,35 @@ def run_settings_of(folder: str | Path) -> dict[str, Any] | None:
     return data
 
 
+def changed_entries(recorded: dict[str, Any] | None, current: dict[str, Any], where: str) -> list[str]:
+    """The entries (environment ids) of a method's yaml whose content differs between what a study or run recorded
+    (:func:`sb3_cic.protocol.conf_file_record`) and the yaml a command reads now; entries only one of them has are
+    not compared (a new environment changes no run), nor are comments.
+
+    A record made before entries were recorded holds only the sha256 of the whole file. When that file was the
+    package's default yaml and changed since, it cannot be told whether an entry did: a warning says so and nothing
+    is refused (a package upgrade rewrites its yamls' comments). A ``--conf-file`` that changed is refused.
+
+    :param recorded: the recorded ``conf_file`` (None: nothing recorded, nothing compared)
+    :param current: the command's ``conf_file``
+    :param where: the file the record is read from, for the warning
+    """
+    if not recorded:
+        return []
+    if "entries" in recorded:
+        old = recorded["entries"]
+        return sorted(key for key, digest in current["entries"].items() if old.get(key, digest) != digest)
+    if recorded.get("sha256") == current["sha256"]:
+        return []
+    if recorded.get("file") is None and current["file"] is None:
+        warnings.warn(f"{where} records the sha256 of the whole default yaml (made before its entries were recorded) "
+                      "and the yaml changed since; whether an entry changed cannot be told. The runs of this command "
+                      "use the yaml as it is now; compare its entries with the hyperparams of a run's result.json",
+                      stacklevel=2)
+        return []
+    return ["(the whole file)"]
+
+
 def check_run_settings(folder: str | Path, record: dict[str, Any]) -> None:
     """``ValueError`` (one line) if the run folder records other settings than ``record``, what a command would make
     it with (its settings and its yaml's sha256: ``settings.json``). A folder that records none is not checked.
@@ -178,9 +208,9 @@ def check_run_settings(folder: str | Path, record: dict[str, Any]) -> None:
         return
     diff = {key: (recorded["settings"].get(key), value) for key, value in record["settings"].items()
             if recorded["settings"].get(key) != value}
-    old_sha = (recorded.get("conf_file") or {}).get("sha256")
-    if old_sha is not None and old_sha != record["conf_file"]["sha256"]:
-        diff["conf_file (its content)"] = (recorded["conf_file"]["file"], record["conf_file"]["file"])
+    changed = changed_entries(recorded.get("conf_file"), record["conf_file"], f"{folder}/{RUN_SETTINGS}")
+    if changed:
+        diff[f"conf_file (entries {', '.join(changed)})"] = (recorded["conf_file"]["file"], record["conf_file"]["file"])
     if diff:
         raise ValueError(f"the run {folder} was made with other settings; (run, command): {diff}. "
                          "Use the run's settings or another folder")
