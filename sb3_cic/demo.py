@@ -26,15 +26,13 @@ from __future__ import annotations
 import argparse
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import torch as th
-
-from sb3_cic import CIC, URLBDDPG, URLBEvalCallback
 from sb3_cic.common.arguments import NON_NEGATIVE_INT, argument_parser, option_type
-from sb3_cic.common.save_util import read_saved_data
 from sb3_cic.constants import EXPERT_SCORES
-from sb3_cic.protocol import evaluation_callback
+
+if TYPE_CHECKING:
+    from sb3_cic.callbacks import URLBEvalCallback
 
 #: the shipped snapshot of each domain: CIC pre-trained reward-free on URLB/<domain>-v0, hidden 256, batch 256
 #: (quadruped: the quadruped study's 500k-step snapshot, networks only; walker: 100k steps)
@@ -48,6 +46,8 @@ TASKS = {"walker": ("flip", "stand", "walk", "run"), "quadruped": ("jump", "stan
 
 def pretrain(steps: int, out: Path, seed: int, hidden_dim: int = 256, batch_size: int = 256, domain: str = "walker") -> Path:
     """Pre-train a CIC on ``URLB/<domain>-v0`` for ``steps`` steps and save it under ``out``; return its path."""
+    from sb3_cic import CIC
+
     model = CIC("MlpPolicy", f"URLB/{domain}-v0", seed=seed, policy_kwargs={"hidden_dim": hidden_dim},
                 batch_size=batch_size, buffer_size=max(steps, 1), learning_starts=min(4000, steps // 2))
     model.learn(steps, progress_bar=True)
@@ -115,6 +115,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         parser.error(f"{args.domain} has no task {args.task!r}; its tasks: {', '.join(TASKS[args.domain])}")
     if args.steps <= args.learning_starts:
         parser.error(f"--steps {args.steps} must be above --learning-starts {args.learning_starts}")
+    import torch as th  # (here: --help needs no torch)
+
     threads = th.get_num_threads()
     th.set_num_threads(args.num_threads)
     try:
@@ -125,6 +127,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
     """The demo's work for parsed arguments (see :func:`main`)."""
+    from sb3_cic import CIC, URLBDDPG
+    from sb3_cic.common.save_util import read_saved_data
+    from sb3_cic.protocol import evaluation_callback
+
     args.out.mkdir(parents=True, exist_ok=True)
     task, env_id = f"{args.domain}_{args.task}", f"URLB/{args.domain}-{args.task}-v0"
     start = time.time()

@@ -11,7 +11,7 @@ import argparse
 from typing import Any
 
 from envs.tasks import DOMAIN_TASKS
-from sb3_cic.common.arguments import argument_parser, option_type
+from sb3_cic.common.arguments import argument_parser, device_type, option_type
 from sb3_cic.constants import DEFAULT_SNAPSHOTS
 
 #: what ``--small`` sets (of ``protocol``, ``study``, ``train`` and ``finetune``): CPU-sized networks, batches and
@@ -86,7 +86,7 @@ def add_settings_arguments(parser: argparse.ArgumentParser) -> None:
         help="steps between checkpoints: one value for every run, or two (pre-training, fine-tuning); "
         "default 50000 20000; 0: none",
     )
-    parser.add_argument("--device", default="auto", help="torch device")
+    parser.add_argument("--device", type=device_type, default="auto", help="torch device (auto: CUDA if any)")
     parser.add_argument("--num-threads", type=option_type("num_threads"), default=None,
                         help="torch threads of each run (default: torch's)")
     parser.add_argument("--compile", action="store_true", help="compile_update=True: each update compiled as one graph")

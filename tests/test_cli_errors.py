@@ -136,6 +136,8 @@ STUDY = ["study", "s", "--methods", "ddpg", "--domains", "walker", "--tasks", "s
         (["finetune", "--algo", "cic", "--env", "URLB/walker-flip-v0", "-i", str(WALKER_SNAPSHOT), "--seed", "-1"],
          "argument --seed: must be an int in \\[0, 4294967295\\], got '-1'"),
         (["protocol", "--pretrain-steps", "-5", "--study", "s"], "argument --pretrain-steps: must be an int >= 1, got '-5'"),
+        (["protocol", "--device", "gpu", "--study", "s"], "argument --device: 'gpu' is not a torch device"),
+        ([*STUDY, "--device", "cuda:x"], "argument --device: 'cuda:x' is not a torch device"),
         (["protocol", "--finetune-steps", "-5", "--study", "s"], "argument --finetune-steps: must be an int >= 1, got '-5'"),
         (["protocol", "--finetune-steps", "0", "--study", "s"], "argument --finetune-steps: must be an int >= 1, got '0'"),
         ([*STUDY, "--finetune-steps", "-5"], "argument --finetune-steps: must be an int >= 1, got '-5'"),

@@ -25,7 +25,7 @@ MARKUP = ("``", ":class:", ":func:", ":data:", ":mod:", ":meth:", ":param")
 
 SCRIPT = """
 import sys
-from sb3_cic.cli import main
+from {module} import main
 try:
     main({arguments!r})
 except SystemExit as exit_:
@@ -34,12 +34,12 @@ print("loaded:", sorted(name for name in {heavy!r} if name in sys.modules), file
 """
 
 
-def _help(arguments: list[str], cwd: Path) -> tuple[str, str, float]:
-    """Run ``sb3-cic arguments`` in a fresh interpreter; return its stdout, its stderr and the CPU seconds it used
+def _help(arguments: list[str], cwd: Path, module: str = "sb3_cic.cli") -> tuple[str, str, float]:
+    """Run ``module``'s ``main(arguments)`` (default: ``sb3-cic arguments``) in a fresh interpreter; return its stdout, its stderr and the CPU seconds it used
     (CPU time, not wall time: the measure holds on a machine busy with other work)."""
     env = {**os.environ, "MUJOCO_GL": "disable", "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    process = subprocess.run([sys.executable, "-c", SCRIPT.format(arguments=arguments, heavy=HEAVY)], cwd=cwd, env=env,
+    process = subprocess.run([sys.executable, "-c", SCRIPT.format(module=module, arguments=arguments, heavy=HEAVY)], cwd=cwd, env=env,
                              capture_output=True, text=True, timeout=120)
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     assert process.returncode == 0, process.stderr
@@ -54,6 +54,14 @@ def test_help_is_fast_plain_and_loads_neither_torch_nor_ray(arguments, tmp_path)
     assert cpu < 1.0, f"{cpu:.2f} s of CPU"
     assert out.startswith("usage: sb3-cic"), out
     assert not [mark for mark in MARKUP if mark in out], out
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_the_demo_help_is_fast_too(tmp_path):
+    out, err, cpu = _help(["--help"], tmp_path, module="sb3_cic.demo")
+    assert err.strip().splitlines()[-1] == "loaded: []", err
+    assert cpu < 1.0, f"{cpu:.2f} s of CPU"
+    assert "--snapshot" in out and not [mark for mark in MARKUP if mark in out], out
     assert list(tmp_path.iterdir()) == []
 
 

@@ -305,6 +305,20 @@ def option_type(name: str) -> Callable[[str], int | float]:
     return convert
 
 
+def device_type(text: str) -> str:
+    """The argparse ``type`` of ``--device``: ``auto`` (SB3's: CUDA when there is one) or a string ``torch.device``
+    reads (``cpu``, ``cuda``, ``cuda:1``...); torch is imported only for the latter."""
+    if text == "auto":
+        return text
+    import torch as th
+
+    try:
+        th.device(text)
+    except RuntimeError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a torch device (auto, cpu, cuda, cuda:1...)") from None
+    return text
+
+
 class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
     """argparse's help with each option's default after its help text, unless the text already says it
     ("default") or there is none to show (a flag, a default of None: the text says what holds instead)."""
