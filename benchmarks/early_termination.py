@@ -24,7 +24,8 @@ batch with their intrinsic reward anyway). Recorded, by :class:`ExtrinsicRecorde
 * wall-clock times: the random warm-up, the training steps after it, the evaluations.
 
 Outputs under ``--out``: per run ``<env>_<method>_seed<k>.json`` (settings, timings, both records),
-``..._episodes.csv`` and ``..._evals.csv``; ``early_termination.png`` (Figure 3: per env, per method, the
+``..._episodes.csv`` and ``..._evals.csv`` (a run whose JSON exists with the same settings is kept, not run
+again: a killed call resumes where it stopped); ``early_termination.png`` (Figure 3: per env, per method, the
 training episodes' extrinsic return and length and the evaluations' return over pre-training, mean over seeds with
 the seeds' range shaded); a printed table. ``--project-steps`` prints the cost of the whole experiment (3 methods
 x 2 envs x the seeds) at that budget, from the rates measured in this invocation's runs.
@@ -173,10 +174,15 @@ def run(env_name: str, method: str, seed: int, args: argparse.Namespace) -> dict
         times[f"train{clock}_ms_per_update"] = 1000 * part["train"] / updates
         times[f"warmup{clock}_ms_per_step"] = 1000 * part["warmup"] / model.learning_starts
         times[f"eval{clock}_ms_per_step"] = 1000 * part["eval"] / max(recorder.times["eval_steps"], 1)
-    return {"env": env_name, "env_id": eval_id, "method": method, "seed": seed, "steps": args.steps,
-            "learning_starts": model.learning_starts, "hidden_dim": args.hidden_dim, "batch_size": args.batch_size,
-            "eval_freq": args.eval_freq, "eval_episodes": args.eval_episodes, "threads": th.get_num_threads(),
+    return {"env": env_name, "env_id": eval_id, "method": method, "seed": seed, **settings_of(args),
+            "learning_starts": model.learning_starts, "threads": th.get_num_threads(),
             "times": times, "episodes": recorder.episodes, "evals": recorder.evals}
+
+
+def settings_of(args: argparse.Namespace) -> dict[str, int]:
+    """The settings a run's JSON records and a later call compares (a run with the same ones is kept)."""
+    return {"steps": args.steps, "hidden_dim": args.hidden_dim, "batch_size": args.batch_size,
+            "eval_freq": args.eval_freq, "eval_episodes": args.eval_episodes}
 
 
 def write_run(result: dict[str, Any], out: Path) -> None:
@@ -308,6 +314,12 @@ def main(argv: list[str] | None = None) -> None:
         for seed in args.seeds:
             for env in args.envs:
                 for method in args.methods:
+                    done = out / f"{env}_{method}_seed{seed}.json"
+                    kept = json.loads(done.read_text()) if done.exists() else None
+                    if kept is not None and all(kept[key] == value for key, value in settings_of(args).items()):
+                        results.append(kept)  # finished by an earlier call with the same settings
+                        print(f"{env} {method} seed {seed}: kept from {done}", flush=True)
+                        continue
                     result = run(env, method, seed, args)
                     write_run(result, out)
                     results.append(result)

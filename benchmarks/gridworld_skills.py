@@ -32,9 +32,10 @@ Settings (small networks, chosen here; the appendix publishes none): hidden 64 f
 discriminator, batch 128, learning rate 1e-3 everywhere, one update per env step after 1,000 random steps,
 replay as large as the run, skills resampled at each episode (20 steps < the 50-step period), everything else
 URLB's (3-step returns, tau 0.01, exploration noise 0.2). Outputs, under ``--out``: ``<method>_seed<k>.json``
-per run (with its wall-clock and CPU seconds), ``results.json`` (every run and the per-method means),
-``gridworld_skills_seed<k>.png`` per seed
-(Figure 7: per-skill visitation of the grid, one row per method) and a printed table.
+per run (with its wall-clock and CPU seconds) and ``<method>_seed<k>_trajectories.npy`` (its skills' cells),
+``results.json`` (every run and the per-method means), ``gridworld_skills_seed<k>.png`` per seed (Figure 7:
+per-skill visitation of the grid, one row per method) and a printed table. A run whose two files exist with the
+same settings is kept, not run again: a killed call resumes where it stopped.
 
     MUJOCO_GL=disable OMP_NUM_THREADS=1 python benchmarks/gridworld_skills.py --steps 30000 --seeds 0 1 2 \\
         --out docs/results/gridworld_skills
@@ -274,14 +275,23 @@ def main(argv: list[str] | None = None) -> None:
         trajectories: dict[str, np.ndarray] = {}
         results: dict[str, dict[str, Any]] = {}
         for name in args.methods:
+            settings = {k: v for k, v in vars(args).items() if k not in ("seeds", "methods", "out")}
+            done, path = out / f"{name}_seed{seed}.json", out / f"{name}_seed{seed}_trajectories.npy"
+            if done.exists() and path.exists() and json.loads(done.read_text())["settings"] == settings:
+                run = json.loads(done.read_text())  # finished by an earlier call with the same settings: kept
+                results[name], trajectories[name] = run, np.load(path)
+                rows.append(run)
+                print(f"{name} seed {seed}: kept from {done}", flush=True)
+                continue
             start, cpu_start = time.perf_counter(), time.process_time()
             model = make_model(name, args, seed)
             model.learn(args.steps)
             wall, cpu = time.perf_counter() - start, time.process_time() - cpu_start
             results[name], trajectories[name] = evaluate(name, model, args, seed)
             run = {"method": name, "seed": seed, "steps": args.steps, "wall_s": wall, "cpu_s": cpu, **results[name],
-                   "settings": {k: v for k, v in vars(args).items() if k not in ("seeds", "methods", "out")}}
-            (out / f"{name}_seed{seed}.json").write_text(json.dumps(run, indent=1))
+                   "settings": settings}
+            np.save(path, trajectories[name])
+            done.write_text(json.dumps(run, indent=1))
             rows.append(run)
             print(f"{name} seed {seed}: {wall:.0f} s ({cpu:.0f} s of CPU)", flush=True)
         plot_seed(trajectories, results, out / f"gridworld_skills_seed{seed}.png", seed)

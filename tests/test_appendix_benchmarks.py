@@ -20,8 +20,9 @@ def load(name: str) -> ModuleType:
 
 
 def test_gridworld_skills_writes_runs_and_figure(tmp_path, capsys):
-    load("gridworld_skills").main(["--steps", "300", "--learning-starts", "100", "--batch-size", "32", "--hidden-dim", "16",
-                                   "--cic-skills", "40", "--seeds", "0", "--out", str(tmp_path)])
+    argv = ["--steps", "300", "--learning-starts", "100", "--batch-size", "32", "--hidden-dim", "16", "--cic-skills", "40",
+            "--seeds", "0", "--out", str(tmp_path)]
+    load("gridworld_skills").main(argv)
     results = json.loads((tmp_path / "results.json").read_text())
     assert [run["method"] for run in results["runs"]] == ["diayn4", "diayn100", "cic"]
     for run in results["runs"]:
@@ -32,9 +33,17 @@ def test_gridworld_skills_writes_runs_and_figure(tmp_path, capsys):
     assert (tmp_path / "gridworld_skills_seed0.png").stat().st_size > 0 and (tmp_path / "cic_seed0.json").exists()
     assert "| diayn4 | 0 | 4 |" in capsys.readouterr().out
 
+    # a second call with the same settings keeps the finished runs (a killed call resumes); other settings rerun
+    (tmp_path / "diayn100_seed0.json").unlink()
+    load("gridworld_skills").main(argv)
+    printed = capsys.readouterr().out
+    assert "diayn4 seed 0: kept from" in printed and "cic seed 0: kept from" in printed
+    assert "diayn100 seed 0: kept" not in printed and (tmp_path / "diayn100_seed0.json").exists()
+    assert json.loads((tmp_path / "results.json").read_text())["runs"][0] == results["runs"][0]
+
 
 @pytest.mark.filterwarnings("ignore:.*reward is ignored")
-def test_early_termination_records_extrinsic_returns(tmp_path):
+def test_early_termination_records_extrinsic_returns(tmp_path, capsys):
     module = load("early_termination")
     module.main(["--steps", "300", "--seeds", "0", "--methods", "diayn", "fixed", "--eval-freq", "150",
                  "--eval-episodes", "2", "--hidden-dim", "16", "--batch-size", "32", "--out", str(tmp_path),
@@ -49,4 +58,10 @@ def test_early_termination_records_extrinsic_returns(tmp_path):
         else:  # 300 steps: no episode of 1,000 steps ended yet; the evaluations run the full 1,000 steps
             assert run["episodes"] == [] and run["evals"][0]["lengths"] == [1000, 1000]
     assert (tmp_path / "early_termination.png").stat().st_size > 0
+    (tmp_path / "dmc_fixed_seed0.json").unlink()  # as if killed during the last run: only that one runs again
+    module.main(["--steps", "300", "--seeds", "0", "--methods", "diayn", "fixed", "--eval-freq", "150",
+                 "--eval-episodes", "2", "--hidden-dim", "16", "--batch-size", "32", "--out", str(tmp_path)])
+    printed = capsys.readouterr().out
+    assert printed.count("kept from") == 3 and "dmc fixed seed 0: kept" not in printed
+    assert (tmp_path / "dmc_fixed_seed0.json").exists()
     module.main(["--plot-only", "--out", str(tmp_path)])

@@ -23,7 +23,7 @@ from sb3_cic.cli import main
 from sb3_cic.constants import EXPERT_SCORES
 from sb3_cic import evaluation
 from sb3_cic.evaluation import write_report
-from sb3_cic.protocol import Settings, check_study_settings, record_study_settings, run_protocol
+from sb3_cic.protocol import Settings, check_study_settings, conf_file_record, record_study_settings, run_protocol
 from sb3_cic.study.checkpoint import RunFolder
 
 SETTINGS = Settings(
@@ -243,12 +243,15 @@ def _refused(arguments: list[str], capsys: pytest.CaptureFixture) -> str:
 def test_settings_a_run_does_not_use_do_not_block_it(tmp_path: Path, capsys: pytest.CaptureFixture):
     """``protocol --method ddpg`` into a study made by ``--method cic --pretrain-steps 1000``: DDPG does not pre-train,
     so the pre-training settings (steps, snapshots, seed) do not block it; those it uses still do. The study records
-    each method's ``--conf-file`` (its content: another path to the same yaml is the same)."""
+    each method's ``--conf-file`` (its entries: another path to the same yaml, or a new comment, is the same)."""
     threads = th.get_num_threads()
     study = tmp_path / "study"
     record_study_settings(study, replace(SETTINGS, pretrain_steps=1000), 0)  # as `--method cic --pretrain-steps 1000`
     custom = tmp_path / "ddpg_custom.yml"
-    custom.write_text((Path(__file__).resolve().parent.parent / "zoo_configs" / "ddpg.yml").read_text() + "# tuned\n")
+    default = (Path(__file__).resolve().parent.parent / "zoo_configs" / "ddpg.yml").read_text()
+    entry = "URLB/point_mass-reach-v0:\n  <<: *scratch\n"
+    assert entry in default
+    custom.write_text(default.replace(entry, entry + "  gamma: 0.98\n"))  # one entry tuned
     ddpg = ["protocol", "--method", "ddpg", "--domain", "point_mass", "--tasks", "reach", "--seeds", "0",
             "--study", str(study), "--pretrain-seed", "7"]
     main([*ddpg, *FINETUNE_FLAGS, "--conf-file", str(custom)])
@@ -256,12 +259,14 @@ def test_settings_a_run_does_not_use_do_not_block_it(tmp_path: Path, capsys: pyt
     assert json.loads((study / "finetune" / "ddpg" / "point_mass_reach" / "seed_0" / "result.json").read_text())["seed"] == 0
     recorded = json.loads((study / "study.json").read_text())
     assert recorded["settings"]["pretrain_steps"] == 1000 and recorded["pretrain_seed"] == 0  # cic's, kept
-    assert recorded["conf_files"] == {"ddpg": {"file": str(custom), "sha256": hashlib.sha256(custom.read_bytes()).hexdigest()}}
+    assert recorded["conf_files"] == {"ddpg": conf_file_record("ddpg", str(custom))}
+    assert recorded["conf_files"]["ddpg"]["sha256"] == hashlib.sha256(custom.read_bytes()).hexdigest()
+    assert "URLB/point_mass-reach-v0" in recorded["conf_files"]["ddpg"]["entries"]
 
     # the settings a run uses are still checked
     assert "hidden_dim': (32, 64)" in _refused([*ddpg, *FINETUNE_FLAGS, "--conf-file", str(custom), "--hidden-dim", "64"],
                                               capsys)
-    assert "conf_file of ddpg" in _refused([*ddpg, *FINETUNE_FLAGS], capsys)  # the default yaml is another
+    assert "conf_file of ddpg (entries URLB/point_mass-reach-v0)" in _refused([*ddpg, *FINETUNE_FLAGS], capsys)
     cic = ["protocol", "--method", "cic", "--domain", "walker", "--tasks", "stand", "--seeds", "0", "--study", str(study),
            *FINETUNE_FLAGS]
     assert "pretrain_steps': (1000, 2000)" in _refused([*cic, "--pretrain-steps", "2000"], capsys)
@@ -269,8 +274,11 @@ def test_settings_a_run_does_not_use_do_not_block_it(tmp_path: Path, capsys: pyt
     moved = tmp_path / "moved.yml"
     shutil.copy(custom, moved)
     main([*ddpg, *FINETUNE_FLAGS, "--conf-file", str(moved)])  # the same yaml elsewhere: accepted (the run is done)
-    custom.write_text(custom.read_text() + "# edited\n")
-    assert "conf_file of ddpg (its content)" in _refused([*ddpg, *FINETUNE_FLAGS, "--conf-file", str(custom)], capsys)
+    custom.write_text(custom.read_text() + "# a comment changes no run\n")
+    main([*ddpg, *FINETUNE_FLAGS, "--conf-file", str(custom)])
+    custom.write_text(custom.read_text().replace("gamma: 0.98", "gamma: 0.97"))
+    assert "conf_file of ddpg (entries URLB/point_mass-reach-v0)" in _refused([*ddpg, *FINETUNE_FLAGS, "--conf-file",
+                                                                               str(custom)], capsys)
 
 
 def test_a_study_begun_from_scratch_takes_pre_training_settings_later(tmp_path: Path):
