@@ -47,9 +47,9 @@ starts at an episode start.
 ``--fast`` puts each method's eager update beside ``compile_update=True`` (one fresh process per method and
 size): update ms, ``learn()`` env steps/s over ``--learn-steps`` (one update every 2 env steps), hours per 2M
 steps, the first compiled update's time (compiling included) and peak memory; on a GPU, the command of the GPU
-figure is ``python benchmarks/throughput.py --device cuda --sizes full --fast --learn-steps 20000 --repeats 10``
-(``benchmarks/gpu_check.sh`` runs it after the CUDA-only tests, and says how to bundle the dependencies for a GPU
-machine without a registry).
+figures (``docs/results/throughput_gpu.md``) came from ``python benchmarks/throughput.py --device cuda --sizes full
+--fast --learn-steps 20000 --repeats 10`` (``benchmarks/gpu_check.sh`` runs it, at 10,000 steps, after the
+CUDA-only tests, and says how to bundle the dependencies for a GPU machine without a registry).
 
 Usage::
 
