@@ -33,7 +33,7 @@ def test_gridworld_skills_writes_runs_and_figure(tmp_path, capsys):
     assert (tmp_path / "gridworld_skills_seed0.png").stat().st_size > 0 and (tmp_path / "cic_seed0.json").exists()
     assert "| diayn4 | 0 | 4 |" in capsys.readouterr().out
 
-    # a second call with the same settings keeps the finished runs (a killed call resumes); other settings rerun
+    # a second call with the same settings keeps the finished runs (a killed call resumes); a run whose file is gone reruns
     (tmp_path / "diayn100_seed0.json").unlink()
     load("gridworld_skills").main(argv)
     printed = capsys.readouterr().out
