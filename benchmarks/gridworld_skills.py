@@ -271,16 +271,16 @@ def main(argv: list[str] | None = None) -> None:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     rows: list[dict[str, Any]] = []
+    settings = {k: v for k, v in vars(args).items() if k not in ("seeds", "methods", "out")}
     for seed in args.seeds:
         trajectories: dict[str, np.ndarray] = {}
         results: dict[str, dict[str, Any]] = {}
         for name in args.methods:
-            settings = {k: v for k, v in vars(args).items() if k not in ("seeds", "methods", "out")}
             done, path = out / f"{name}_seed{seed}.json", out / f"{name}_seed{seed}_trajectories.npy"
-            if done.exists() and path.exists() and json.loads(done.read_text())["settings"] == settings:
-                run = json.loads(done.read_text())  # finished by an earlier call with the same settings: kept
-                results[name], trajectories[name] = run, np.load(path)
-                rows.append(run)
+            kept = json.loads(done.read_text()) if done.exists() and path.exists() else None
+            if kept is not None and kept["settings"] == settings:  # finished by an earlier call with these settings
+                results[name], trajectories[name] = kept, np.load(path)
+                rows.append(kept)
                 print(f"{name} seed {seed}: kept from {done}", flush=True)
                 continue
             start, cpu_start = time.perf_counter(), time.process_time()
