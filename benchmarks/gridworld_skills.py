@@ -47,6 +47,8 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
+import platform
 import time
 from pathlib import Path
 from typing import Any
@@ -272,6 +274,7 @@ def main(argv: list[str] | None = None) -> None:
     out.mkdir(parents=True, exist_ok=True)
     rows: list[dict[str, Any]] = []
     settings = {k: v for k, v in vars(args).items() if k not in ("seeds", "methods", "out")}
+    machine = {"torch": th.__version__, "python": platform.python_version(), "cpus": os.cpu_count()}  # provenance
     for seed in args.seeds:
         trajectories: dict[str, np.ndarray] = {}
         results: dict[str, dict[str, Any]] = {}
@@ -289,7 +292,7 @@ def main(argv: list[str] | None = None) -> None:
             wall, cpu = time.perf_counter() - start, time.process_time() - cpu_start
             results[name], trajectories[name] = evaluate(name, model, args, seed)
             run = {"method": name, "seed": seed, "steps": args.steps, "wall_s": wall, "cpu_s": cpu, **results[name],
-                   "settings": settings}
+                   "settings": settings, "machine": machine}
             np.save(path, trajectories[name])
             done.write_text(json.dumps(run, indent=1))
             rows.append(run)
