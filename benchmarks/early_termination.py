@@ -175,7 +175,7 @@ def run(env_name: str, method: str, seed: int, args: argparse.Namespace) -> dict
         times[f"warmup{clock}_ms_per_step"] = 1000 * part["warmup"] / model.learning_starts
         times[f"eval{clock}_ms_per_step"] = 1000 * part["eval"] / max(recorder.times["eval_steps"], 1)
     return {"env": env_name, "env_id": eval_id, "method": method, "seed": seed, **settings_of(args),
-            "learning_starts": model.learning_starts, "threads": th.get_num_threads(),
+            "learning_starts": model.learning_starts, "threads": th.get_num_threads(), "torch": th.__version__,
             "times": times, "episodes": recorder.episodes, "evals": recorder.evals}
 
 
