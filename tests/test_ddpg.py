@@ -219,12 +219,15 @@ def test_skill_size_mismatch_is_clear_error(tiny):
 
 
 def test_networks_only_snapshot_loads_with_fresh_optimisers(tmp_path, tiny):
-    model = CIC("MlpPolicy", "URLB/walker-v0", skill_dim=4, seed=0, **tiny)
+    model = CIC("MlpPolicy", "URLB/walker-v0", skill_dim=4, seed=0, tensorboard_log=str(tmp_path / "tb"), **tiny)
     model.learn(300)
     model.save(tmp_path / "full.zip")
     small = networks_only(tmp_path / "full.zip", tmp_path / "networks.zip")
     with zipfile.ZipFile(small) as archive:
         names = archive.namelist()
+        assert str(tmp_path).encode() not in archive.read("data")  # no local path in a snapshot to share
+    with zipfile.ZipFile(tmp_path / "full.zip") as archive:
+        assert str(tmp_path).encode() in archive.read("data")  # the full save keeps SB3's tensorboard_log
     assert "policy.pth" in names and "reward_module.pth" in names and not any("optimizer" in n for n in names)
     assert NETWORKS_ONLY_ENTRY in names and is_networks_only(small) and not is_networks_only(tmp_path / "full.zip")
     assert small.stat().st_size < (tmp_path / "full.zip").stat().st_size

@@ -4,6 +4,7 @@ snapshot loaded by mistake), networks-only snapshots and :class:`SaveLoadMixin`,
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import shutil
 import tempfile
@@ -136,7 +137,8 @@ def networks_only(path: str | Path, out: str | Path | None = None) -> Path:
     """Copy a saved model without its optimiser states (``*optimizer.pth``): a snapshot of the networks, the
     reward module and the attributes, about half the size, that :meth:`SaveLoadMixin.load` and
     ``load_pretrained`` read with fresh optimisers (fine-tuning starts with fresh ones anyway). The copy says what
-    it is (a :data:`NETWORKS_ONLY_ENTRY`).
+    it is (a :data:`NETWORKS_ONLY_ENTRY`) and forgets the tensorboard folder of the machine it was trained on
+    (``tensorboard_log``: None), so that a snapshot to share names no local path.
 
     :param path: the saved model (``.zip``)
     :param out: where to write the copy (default: over ``path``)
@@ -149,12 +151,23 @@ def networks_only(path: str | Path, out: str | Path | None = None) -> Path:
     with tempfile.NamedTemporaryFile(dir=out.parent, suffix=".zip", delete=False) as file:
         with zipfile.ZipFile(file, "w", zipfile.ZIP_DEFLATED) as archive:
             for info, content in entries:
+                if info.filename == "data":
+                    content = _without_tensorboard_log(content)
                 if info.filename != NETWORKS_ONLY_ENTRY:
                     archive.writestr(info, content)
             archive.writestr(NETWORKS_ONLY_ENTRY, NETWORKS_ONLY_NOTE)
     shutil.copymode(path, file.name)  # the source's permissions, not the temporary file's
     os.replace(file.name, out)
     return out
+
+
+def _without_tensorboard_log(data: bytes) -> bytes:
+    """A saved model's ``data`` (SB3's JSON of its attributes) with ``tensorboard_log`` set to None."""
+    attributes = json.loads(data)
+    if attributes.get("tensorboard_log") is None:
+        return data
+    attributes["tensorboard_log"] = None
+    return json.dumps(attributes, indent=4).encode()
 
 
 def package_version() -> str:
