@@ -252,13 +252,13 @@ def plot(results: list[dict[str, Any]], path: Path) -> None:
                     mean, low, high = np.nanmean(curves, 0), np.nanmin(curves, 0), np.nanmax(curves, 0)
                 ok = np.isfinite(mean)  # bins where no episode ended (short runs of 1,000-step episodes) are left out
                 ax.plot(x[ok], mean[ok], color=color, marker="." if ok.sum() < 5 else None,
-                        label=f"{method} ({len(runs)} seeds)")
+                        label=f"{method} ({len(runs)} seed{'s' * (len(runs) > 1)})")
                 ax.fill_between(x[ok], low[ok], high[ok], color=color, alpha=0.2)
                 ax.set_ylabel(label, fontsize=8)
         axes[0, col].set_title(ENVS[env][2], fontsize=10)
         axes[-1, col].set_xlabel("pre-training env steps")
         axes[0, col].legend(fontsize=8)
-    fig.suptitle("Reward-free pre-training on hopper: extrinsic reward recorded, never learnt from", fontsize=10)
+    fig.suptitle("Reward-free pre-training on hopper\n(extrinsic reward recorded, never learnt from)", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
