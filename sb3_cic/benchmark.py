@@ -196,6 +196,11 @@ def claims(aggregates: dict[str, dict[str, dict[str, float]]], domains: dict[str
     return lines
 
 
+def _short(study: str | Path) -> str:
+    """A study folder's name for the report: its last two path components (``quadruped_reduced/runs``)."""
+    return "/".join(Path(study).resolve().parts[-2:])
+
+
 def _aggregate_table(aggregates: dict[str, dict[str, dict[str, float]]], tasks: Sequence[str], n_runs: dict[str, int]) -> list[str]:
     lines = ["| method | runs | " + " | ".join(f"{m} ours | {m} published" for m in METRICS) + " |"]
     lines.append("|---|---:|" + "---:|---:|" * len(METRICS))
@@ -244,7 +249,7 @@ def write_benchmark_report(
     lines = [
         "# URLB over the 12 tasks",
         "",
-        f"Studies: {', '.join(f'`{Path(s).name}`' for s in studies)}; fine-tuning seeds {', '.join(map(str, kept))}. "
+        f"Studies: {', '.join(f'`{_short(s)}`' for s in studies)}; fine-tuning seeds {', '.join(map(str, kept))}. "
         "Final return = the last evaluation's mean return; normalised score = return / expert score.",
         "",
         "## Per task, beside Table 6",

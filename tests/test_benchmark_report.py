@@ -54,7 +54,9 @@ def test_table6_returns_give_table6_median_and_mean(tmp_path):
     for domain in benchmark.DOMAIN_TASKS:
         assert set(report["domains"][domain]) == set(PUBLISHED_RETURNS)
     assert (tmp_path / "out" / "aggregates.png").stat().st_size > 0
-    assert "## Over the 12 tasks, beside Table 5" in (tmp_path / "out" / "report.md").read_text()
+    text = (tmp_path / "out" / "report.md").read_text()
+    assert "## Over the 12 tasks, beside Table 5" in text
+    assert f"Studies: `{tmp_path.name}/quadruped`, `{tmp_path.name}/others`;" in text
 
 
 def test_same_order_as_table6_is_rank_one_and_unlikely_by_chance(tmp_path):
