@@ -257,6 +257,7 @@ def plot(results: list[dict[str, Any]], path: Path) -> None:
                 ax.set_ylabel(label, fontsize=8)
         axes[0, col].set_title(ENVS[env][2], fontsize=10)
         axes[-1, col].set_xlabel("pre-training env steps")
+        axes[-1, col].xaxis.set_major_formatter(lambda value, _: f"{value / 1000:g}k" if value else "0")
         axes[0, col].legend(fontsize=8)
     fig.suptitle("Reward-free pre-training on hopper\n(extrinsic reward recorded, never learnt from)", fontsize=10)
     fig.tight_layout()
