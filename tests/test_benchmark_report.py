@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -73,6 +74,16 @@ def test_reversed_order_is_not_agreement(tmp_path):
     agreement = benchmark.rank_agreement(ours, benchmark.ALL_TASKS, reps=500)
     assert agreement["rho"] == pytest.approx(-1.0)
     assert agreement["p_permutation"] == pytest.approx(1.0)
+
+
+@pytest.mark.parametrize("n_methods", [3, 6])
+def test_permutation_p_is_exact_for_few_methods(n_methods):
+    """Up to 8 methods every re-ordering is counted: the same order as Table 6 is the one of n! that agrees as well."""
+    labels = sorted(PUBLISHED_RETURNS)[:n_methods]
+    ours = {label: {task: [mean] for task, (mean, _) in PUBLISHED_RETURNS[label].items()} for label in labels}
+    agreement = benchmark.rank_agreement(ours, benchmark.ALL_TASKS, reps=10)
+    assert agreement["rho"] == pytest.approx(1.0)
+    assert agreement["p_permutation"] == pytest.approx(1 / math.factorial(n_methods))
 
 
 def test_seed_interval_with_several_seeds_and_seed_filter(tmp_path):
