@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import itertools
 import json
-import math
 from collections import defaultdict
 from pathlib import Path
 from typing import Any, Sequence
@@ -145,8 +144,7 @@ def rank_agreement(
     rho = float(spearman_rows(mine, published)[0])
     rng = np.random.default_rng(seed)
     if len(labels) <= EXACT_PERMUTATIONS_UP_TO:
-        orders = np.fromiter(itertools.chain.from_iterable(itertools.permutations(range(len(labels)))), dtype=np.intp)
-        reorderings = mine[orders.reshape(math.factorial(len(labels)), len(labels))]
+        reorderings = mine[np.array(list(itertools.permutations(range(len(labels)))))]
     else:
         reorderings = rng.permuted(np.tile(mine, (reps, 1)), axis=1)
     permuted = spearman_rows(reorderings, published)
