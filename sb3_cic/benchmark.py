@@ -41,6 +41,9 @@ DOMAIN_TASKS: dict[str, tuple[str, ...]] = {
 #: up to this many methods, the permutation p-value of :func:`rank_agreement` enumerates every re-ordering (8! = 40320)
 EXACT_PERMUTATIONS_UP_TO = 8
 
+#: a permutation p-value below this says that our order agrees with Table 6's beyond chance (:func:`claims`)
+AGREEMENT_LEVEL = 0.05
+
 #: the 12 tasks
 ALL_TASKS: tuple[str, ...] = tuple(task for tasks in DOMAIN_TASKS.values() for task in tasks)
 
@@ -170,16 +173,23 @@ def rank_agreement(
     return out
 
 
-def claims(aggregates: dict[str, dict[str, dict[str, float]]], domains: dict[str, dict[str, dict[str, dict[str, float]]]]) -> list[str]:
+def claims(
+    aggregates: dict[str, dict[str, dict[str, float]]],
+    domains: dict[str, dict[str, dict[str, dict[str, float]]]],
+    agreement: dict[str, dict[str, Any] | None] | None = None,
+) -> list[str]:
     """The seed's claims, each said as holding or not at this study's scale (point estimates).
 
     * CIC above APS and ProtoRL on every statistic over the 12 tasks (IQM, median and mean higher, optimality
       gap lower);
-    * CIC the one method good on all three domains: the methods whose per-domain IQM is above DDPG from
-      scratch's in every domain, and each domain's best method.
+    * CIC the one method good on all three domains: whether CIC is the only method whose per-domain IQM is above
+      DDPG from scratch's in every domain (the methods that are, and each domain's best method);
+    * the published order per domain: whether our order agrees with Table 6's beyond chance (permutation p below
+      :data:`AGREEMENT_LEVEL`).
 
     :param aggregates: ``{label: {metric: {"point", ...}}}`` over the 12 tasks
     :param domains: ``{domain: aggregates over its tasks}``
+    :param agreement: ``{domain or "all 12 tasks": rank_agreement(...)}`` (None: no claim on the order)
     """
     lines = []
 
@@ -197,10 +207,20 @@ def claims(aggregates: dict[str, dict[str, dict[str, float]]], domains: dict[str
         good = sorted(
             label for label in labels if all(agg[label]["IQM"]["point"] > agg["ddpg"]["IQM"]["point"] for agg in domains.values())
         )
+        if "cic" in labels:
+            verdict = "holds" if good == ["cic"] else "does not hold"
+            lines.append(f"CIC the one method whose IQM is above DDPG from scratch's in all three domains: {verdict}.")
         lines.append(f"Methods whose IQM is above DDPG from scratch's in all three domains: {', '.join(good) or 'none'}.")
         for domain, agg in domains.items():
             best = max(agg, key=lambda label: agg[label]["IQM"]["point"])
             lines.append(f"Best IQM on {domain}: {best} ({_fmt(agg[best]['IQM']['point'])}).")
+    for name, row in (agreement or {}).items():
+        if row is not None:
+            p = row["p_permutation"]
+            verdict = (f"agrees beyond chance (p < {AGREEMENT_LEVEL:g})" if p < AGREEMENT_LEVEL
+                       else "not told apart from a random order")
+            lines.append(f"Table 6's order on {name} ({len(row['methods'])} methods): Spearman {_fmt(row['rho'])}, "
+                         f"permutation p {_fmt(p)}: {verdict}.")
     return lines
 
 
@@ -251,7 +271,7 @@ def write_benchmark_report(
             domains[domain] = aggregate_scores(per_domain, reps=reps, seed=seed)
     agreement = {domain: rank_agreement(ours, tasks, reps=5 * reps, seed=seed) for domain, tasks in DOMAIN_TASKS.items()}
     agreement["all 12 tasks"] = rank_agreement(ours, ALL_TASKS, reps=5 * reps, seed=seed)
-    said = claims(aggregates, domains if len(domains) == len(DOMAIN_TASKS) else {})
+    said = claims(aggregates, domains if len(domains) == len(DOMAIN_TASKS) else {}, agreement)
 
     kept = sorted({r["seed"] for r in results})
     lines = [

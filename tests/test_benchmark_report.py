@@ -67,6 +67,9 @@ def test_same_order_as_table6_is_rank_one_and_unlikely_by_chance(tmp_path):
     assert agreement["p_permutation"] < 0.01
     assert agreement["seeds_low"] is None  # one seed: nothing to resample
     assert "CIC above aps on every statistic over the 12 tasks: holds." in report["claims"]
+    order = [line for line in report["claims"] if line.startswith("Table 6's order on all 12 tasks")]
+    assert order == [f"Table 6's order on all 12 tasks ({len(PUBLISHED_RETURNS)} methods): Spearman 1.000, "
+                     f"permutation p {agreement['p_permutation']:.3f}: agrees beyond chance (p < 0.05)."]
 
 
 def test_reversed_order_is_not_agreement(tmp_path):
@@ -118,6 +121,21 @@ def test_claims_say_when_cic_is_behind():
     }
     said = benchmark.claims(aggregates, {})
     assert said == ["CIC above aps on every statistic over the 12 tasks: does not hold (CIC ahead on Median, Mean, Optimality Gap)."]
+
+
+def test_claims_on_domains_and_order():
+    """CIC "the one method good on all three domains" holds only when no other method beats DDPG in every domain;
+    an order whose permutation p is not below 0.05 is said not to be told apart from a random one."""
+    point = lambda x: {"IQM": {"point": x}}  # noqa: E731
+    domains = {d: {"ddpg": point(0.3), "cic": point(0.6), "apt": point(0.5 if d != "jaco" else 0.2)} for d in benchmark.DOMAIN_TASKS}
+    agreement = {"walker": {"rho": 0.2, "p_permutation": 0.35, "methods": ["a", "b", "c"]}, "jaco": None}
+    said = benchmark.claims({}, domains, agreement)
+    assert "CIC the one method whose IQM is above DDPG from scratch's in all three domains: holds." in said
+    assert said[-1] == "Table 6's order on walker (3 methods): Spearman 0.200, permutation p 0.350: not told apart from a random order."
+    domains["jaco"]["apt"] = point(0.4)
+    said = benchmark.claims({}, domains)
+    assert "CIC the one method whose IQM is above DDPG from scratch's in all three domains: does not hold." in said
+    assert "Methods whose IQM is above DDPG from scratch's in all three domains: apt, cic." in said
 
 
 def test_command_line_refuses_a_missing_folder(tmp_path, capsys):
