@@ -127,11 +127,15 @@ def test_claims_on_domains_and_order():
     """CIC "the one method good on all three domains" holds only when no other method beats DDPG in every domain;
     an order whose permutation p is not below 0.05 is said not to be told apart from a random one."""
     point = lambda x: {"IQM": {"point": x}}  # noqa: E731
-    domains = {d: {"ddpg": point(0.3), "cic": point(0.6), "apt": point(0.5 if d != "jaco" else 0.2)} for d in benchmark.DOMAIN_TASKS}
+    domains = {
+        d: {"ddpg": point(0.3), "cic": point(0.6), "apt": point(0.5 if d != "jaco" else 0.2)} for d in benchmark.DOMAIN_TASKS
+    }
     agreement = {"walker": {"rho": 0.2, "p_permutation": 0.35, "methods": ["a", "b", "c"]}, "jaco": None}
     said = benchmark.claims({}, domains, agreement)
     assert "CIC the one method whose IQM is above DDPG from scratch's in all three domains: holds." in said
-    assert said[-1] == "Table 6's order on walker (3 methods): Spearman 0.200, permutation p 0.350: not told apart from a random order."
+    assert said[-1] == (
+        "Table 6's order on walker (3 methods): Spearman 0.200, permutation p 0.350: not told apart from a random order."
+    )
     domains["jaco"]["apt"] = point(0.4)
     said = benchmark.claims({}, domains)
     assert "CIC the one method whose IQM is above DDPG from scratch's in all three domains: does not hold." in said
