@@ -17,12 +17,13 @@ from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, ReplayB
 
 from sb3_cic.buffers import URLBReplayBuffer
 from sb3_cic.common.arguments import check_ddpg_arguments, check_range, check_ranges
-from sb3_cic.common.env_util import check_finite_step, env_id_of, prepare_env
+from sb3_cic.common.env_util import check_finite_step, dict_layout_of, env_id_of, prepare_env, vec_normalize_of
 from sb3_cic.common.fast_update import UpdateMetrics, compiled_step
 from sb3_cic.common.method import MethodMixin
 from sb3_cic.common.rollout import LeanRolloutMixin
 from sb3_cic.common.save_util import SaveLoadMixin, package_version
 from sb3_cic.common.skill_mixin import SkillMixin
+from sb3_cic.envs.dict_obs import StateDictLayout
 from sb3_cic.finetune import start_finetuning, with_finetune_callback
 from sb3_cic.policies import URLBPolicy, min_q, normalize_policy_kwargs
 from sb3_cic.rewards.base import RewardModule
@@ -60,10 +61,12 @@ class URLBDDPG(MethodMixin, SkillMixin, LeanRolloutMixin, SaveLoadMixin, DDPG):
     its random initialisation).
 
     :param policy: the policy model (``"MlpPolicy"``; width through ``policy_kwargs={"hidden_dim": ...}``), or
-        ``"MultiInputPolicy"`` for a Dict observation of 1-D or scalar state Boxes (shimmy's ``dm_control/...`` ids):
-        the env is wrapped with :class:`~envs.dict_obs.FlatStateDict` (the entries concatenated in the Dict's key
-        order, alphabetical for shimmy's; actions in [-1, 1] rescaled to the env's bounds) and the policy is
-        ``"MlpPolicy"``'s on the flat state (``multi_input`` is saved with the model)
+        ``"MultiInputPolicy"`` for a Dict observation of state entries (shimmy's ``dm_control/...`` ids; 1-D or scalar
+        Boxes, Discrete, MultiDiscrete and MultiBinary entries, one-hot as SB3's): the env is wrapped with
+        :class:`~sb3_cic.envs.dict_obs.FlatStateDict` (a VecEnv with :class:`~sb3_cic.envs.vec_dict_obs.VecFlatStateDict`;
+        the entries concatenated in the Dict's key order, alphabetical for shimmy's; actions in [-1, 1] rescaled to the
+        env's bounds) and the policy is ``"MlpPolicy"``'s on the flat state; ``predict`` takes the env's own Dict
+        observations and returns the env's actions (``multi_input`` and ``dict_layout`` are saved with the model)
     :param env: environment id, environment or VecEnv
     :param learning_rate: Adam learning rate of actor and critic
     :param buffer_size: replay capacity
@@ -111,6 +114,8 @@ class URLBDDPG(MethodMixin, SkillMixin, LeanRolloutMixin, SaveLoadMixin, DDPG):
     compile_update: bool | dict[str, Any] = False
     #: built with ``"MultiInputPolicy"``: Dict observations are flattened (a class default for older models)
     multi_input: bool = False
+    #: how the env's Dict observations are flattened (None: flat observations; a class default for older models)
+    dict_layout: StateDictLayout | None = None
 
     def __init__(
         self,
@@ -167,6 +172,9 @@ class URLBDDPG(MethodMixin, SkillMixin, LeanRolloutMixin, SaveLoadMixin, DDPG):
             tensorboard_log=tensorboard_log, policy_kwargs=policy_kwargs, verbose=verbose, seed=seed, device=device,
             _init_setup_model=False,
         )
+        if self.env is not None:  # (``load`` without an env: the saved layout)
+            self.dict_layout = dict_layout_of(self.env)
+        self._vec_normalize_env = vec_normalize_of(self.env)  # a VecNormalize of Dicts, seen flat
         self.n_steps = n_steps
         self._stats_window_size = stats_window_size
         self.exploration_std = exploration_std

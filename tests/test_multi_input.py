@@ -11,9 +11,14 @@ import numpy as np
 import pytest
 from gymnasium import spaces
 
+from stable_baselines3.common.env_util import make_vec_env
+from stable_baselines3.common.evaluation import evaluate_policy
+from stable_baselines3.common.vec_env import VecNormalize
+
 import sb3_cic.methods as methods
-from envs import FlatStateDict
-from envs.dict_obs import state_dict_keys
+import shimmy  # noqa: F401  (registers the dm_control/... ids with gymnasium)
+from sb3_cic.envs import FlatStateDict
+from sb3_cic.envs.dict_obs import state_dict_keys
 from sb3_cic import CIC, URLBDDPG, URLBEvalCallback
 from sb3_cic.common.env_util import make_env
 
@@ -108,25 +113,60 @@ def test_every_method_takes_multi_input_policy(cls, tiny):
 
 
 @pytest.mark.filterwarnings("ignore:.*reward is ignored")
-def test_save_load_and_finetune_through_a_shimmy_id(tiny, tmp_path):
+def test_a_shimmy_id_trains_predicts_evaluates_saves_loads_and_finetunes_on_its_own_dict_observations(tiny, tmp_path):
+    """SB3's habit on shimmy's ``dm_control/walker-walk-v0``: train with MultiInputPolicy, ``predict`` on the env's Dict
+    observation, ``evaluate_policy`` on the env itself, save, load (with and without an env) and fine-tune."""
     tiny.update(learning_starts=100, buffer_size=1000)
-    model = CIC("MultiInputPolicy", "dm_control/hopper-hop-v0", skill_dim=4, seed=0, **tiny)
-    assert model.state_dim == 15  # position 6, touch 2, velocity 7 (alphabetical)
-    model.learn(300)
-    model.save(tmp_path / "cic_hopper")
-    loaded = CIC.load(tmp_path / "cic_hopper", env="dm_control/hopper-hop-v0")
-    assert loaded.multi_input
-    obs = np.random.default_rng(0).normal(size=(3, 15 + 4)).astype(np.float32)
-    np.testing.assert_array_equal(model.predict(obs, deterministic=True)[0], loaded.predict(obs, deterministic=True)[0])
-    loaded.learn(100, reset_num_timesteps=False)
-    env = loaded.wrap_env("dm_control/hopper-hop-v0")  # an eval env as the training env: flat, with the skill
-    assert env.observation_space == loaded.observation_space
-    raw_obs, _ = make_env("dm_control/hopper-hop-v0").reset(seed=0)
-    with pytest.raises(ValueError, match="wrap_env"):
-        loaded.predict(raw_obs)
+    env = gym.wrappers.TimeLimit(make_env("dm_control/walker-walk-v0"), 20)  # (imports shimmy; short episodes)
+    model = CIC("MultiInputPolicy", env, skill_dim=4, seed=0, **tiny).learn(200)
+    assert model.state_dim == 24  # height 1, orientations 14, velocity 9 (alphabetical)
+    raw_obs, _ = env.reset(seed=0)
+    assert isinstance(raw_obs, dict) and raw_obs["velocity"].dtype == np.float64
+    action, _ = model.predict(raw_obs, deterministic=True)
+    assert action.shape == (6,) and env.action_space.contains(action)
+    mean, _ = evaluate_policy(model, env, n_eval_episodes=1, warn=False)
+    assert np.isfinite(mean)
 
-    task = CIC.load_pretrained(tmp_path / "cic_hopper", env="dm_control/hopper-hop-v0", learning_starts=100)
-    evaluation = URLBEvalCallback("dm_control/hopper-hop-v0", n_eval_episodes=1, eval_freq=10_000)
-    task.learn(200, callback=evaluation)
+    model.save(tmp_path / "cic_walker")
+    path = tmp_path / "cic_walker"
+    for loaded in (CIC.load(path, env="dm_control/walker-walk-v0"), CIC.load(path)):  # (without an env: the saved layout)
+        assert loaded.multi_input and loaded.dict_layout.keys == ["height", "orientations", "velocity"]
+        loaded.set_skill(model.current_skill())
+        np.testing.assert_array_equal(loaded.predict(raw_obs, deterministic=True)[0], action)
+    loaded = CIC.load(tmp_path / "cic_walker", env=env)
+    loaded.learn(40, reset_num_timesteps=False)
+    assert loaded.num_timesteps == 240
+
+    task = CIC.load_pretrained(tmp_path / "cic_walker", env=env, learning_starts=20)
+    evaluation = URLBEvalCallback(env, n_eval_episodes=1, eval_freq=10_000)
+    task.learn(60, callback=evaluation)
     assert task.multi_input and not task.reward_free and task.finetune_skill is not None
     assert len(evaluation.history) == 1  # step 0, on the flattened eval env
+    np.testing.assert_array_equal(task.predict(raw_obs)[0].shape, (6,))
+    mean, _ = evaluate_policy(task, env, n_eval_episodes=1, warn=False)
+    assert np.isfinite(mean)
+
+
+@pytest.mark.filterwarnings("ignore:.*reward is ignored")
+@pytest.mark.parametrize("cls", METHODS, ids=lambda cls: cls.__name__)
+def test_make_vec_env_of_a_shimmy_id_trains_every_class(cls, tiny):
+    tiny.update(learning_starts=20, batch_size=16, buffer_size=200, policy_kwargs={"hidden_dim": 16})
+    venv = make_vec_env("dm_control/walker-walk-v0", n_envs=2, seed=0)
+    model = cls("MultiInputPolicy", venv, **tiny).learn(40)
+    assert model._n_updates > 0 and model.observation_space.shape == (24 + model.skill_dim,)
+    actions, _ = model.predict(venv.reset(), deterministic=True)
+    assert actions.shape == (2, 6)
+
+
+@pytest.mark.filterwarnings("ignore:.*reward is ignored")
+@pytest.mark.parametrize("cls", [URLBDDPG, CIC], ids=lambda cls: cls.__name__)
+def test_vec_normalize_of_a_shimmy_id(cls, tiny):
+    """SB3's ``VecNormalize`` over shimmy's Dict VecEnv (walker's 0-d ``height`` included): learn and evaluate."""
+    tiny.update(learning_starts=20, batch_size=16, buffer_size=200, policy_kwargs={"hidden_dim": 16})
+    make = lambda: gym.wrappers.TimeLimit(make_env("dm_control/walker-walk-v0"), 20)  # noqa: E731
+    env = VecNormalize(make_vec_env(make, n_envs=2, seed=0))
+    model = cls("MultiInputPolicy", env, **tiny).learn(60)  # episodes end at 40 (20 steps of 2 envs)
+    stored = model.replay_buffer.next_observations[: model.replay_buffer.pos, :, 0]  # height, not normalised
+    assert ((stored > 0.0) & (stored < 2.0)).all() and env.obs_rms["height"].count > 1
+    mean, _ = evaluate_policy(model, env, n_eval_episodes=2, warn=False)
+    assert np.isfinite(mean)

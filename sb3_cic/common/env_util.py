@@ -9,11 +9,12 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 from stable_baselines3.common.type_aliases import GymEnv
-from stable_baselines3.common.vec_env import VecEnv, unwrap_vec_normalize
+from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, VecNormalize, unwrap_vec_normalize
 
-from envs.dict_obs import FlatStateDict
-from envs.reward_free import RewardFree
-from envs.skill_wrapper import SkillObservationWrapper, VecSkillObservation
+from sb3_cic.envs.dict_obs import FlatStateDict, StateDictLayout
+from sb3_cic.envs.reward_free import RewardFree
+from sb3_cic.envs.skill_wrapper import SkillObservationWrapper, VecSkillObservation
+from sb3_cic.envs.vec_dict_obs import VecFlatStateDict
 from sb3_cic.skills import SkillPrior
 
 #: the ids of URLB's reward-free pre-training envs (``URLB/walker-v0``): a domain, no task
@@ -82,14 +83,16 @@ def prepare_env(
 ) -> GymEnv:
     """Make ``env`` (an id, an env or a VecEnv) ready for a URLB agent.
 
-    A Dict observation of state vectors (shimmy's ``dm_control/...`` ids) needs ``multi_input`` (the model's
-    ``"MultiInputPolicy"``; without it a ``ValueError`` says so, as SB3's): the env is wrapped with
-    :class:`~envs.dict_obs.FlatStateDict` (entries in the Dict's key order, actions in [-1, 1]).
-    Checks that actions are continuous and observations flat states, and adds the skill when the agent
-    has a skill prior and the env does not carry it yet: an env is wrapped with
-    :class:`~envs.SkillObservationWrapper`, a VecEnv of plain envs with :class:`~envs.VecSkillObservation`.
-    A wrapper with another skill size is a ``ValueError``, and so is a VecNormalize below the skill
-    (its statistics would have the state's size).
+    A Dict observation of state entries (shimmy's ``dm_control/...`` ids) needs ``multi_input`` (the model's
+    ``"MultiInputPolicy"``; without it a ``ValueError`` says so, as SB3's): an env is wrapped with
+    :class:`~sb3_cic.envs.dict_obs.FlatStateDict`, a VecEnv (a ``VecFrameStack`` or ``VecNormalize`` of Dicts
+    included) with :class:`~sb3_cic.envs.vec_dict_obs.VecFlatStateDict` (the rule of both:
+    :class:`~sb3_cic.envs.dict_obs.StateDictLayout`). Checks that actions are continuous and observations flat
+    states, and adds the skill when the agent has a skill prior and the env does not carry it yet: an env is
+    wrapped with :class:`~sb3_cic.envs.SkillObservationWrapper`, a VecEnv of plain envs with
+    :class:`~sb3_cic.envs.VecSkillObservation`. A wrapper with another skill size is a ``ValueError``, and so is a
+    VecNormalize of flat observations below the skill (its statistics would have the state's size; a VecNormalize
+    of Dicts is seen through :class:`FlatVecNormalize`).
 
     :param env: environment id, environment or VecEnv
     :param prior: the agent's skill prior, or None
@@ -102,14 +105,9 @@ def prepare_env(
         if not multi_input:
             raise ValueError(
                 "You must use `MultiInputPolicy` when working with dict observation space, not MlpPolicy: "
-                "MultiInputPolicy flattens a Dict of 1-D or scalar Boxes in its key order (envs.FlatStateDict)"
+                "MultiInputPolicy flattens a Dict of state entries in its key order (sb3_cic.envs.FlatStateDict)"
             )
-        if isinstance(env, VecEnv):
-            raise ValueError(
-                "a VecEnv of Dict observations: wrap each env with envs.FlatStateDict first "
-                "(make_vec_env(..., wrapper_class=FlatStateDict))"
-            )
-        env = FlatStateDict(env)
+        env = VecFlatStateDict(env) if isinstance(env, VecEnv) else FlatStateDict(env)
     if not isinstance(env.action_space, spaces.Box):
         raise ValueError(f"URLB agents need a continuous (Box) action space, got {env.action_space}")
     obs_space = env.observation_space
@@ -122,7 +120,7 @@ def prepare_env(
         return env
     if isinstance(env, VecEnv):
         if not all(env.env_is_wrapped(SkillObservationWrapper)):
-            if unwrap_vec_normalize(env) is not None:
+            if unwrap_vec_normalize(env) is not None and find_vec_flat_state_dict(env) is None:
                 raise ValueError(
                     "a skill-based agent cannot add its skill above VecNormalize: wrap each env in "
                     "SkillObservationWrapper first (make_vec_env(..., wrapper_class=...)), then VecNormalize"
@@ -138,6 +136,111 @@ def prepare_env(
     if wrapper.skill_dim != prior.dim:
         raise ValueError(f"the env's SkillObservationWrapper has skill_dim {wrapper.skill_dim}, the agent's prior {prior.dim}")
     return env
+
+
+def find_vec_flat_state_dict(env: VecEnv) -> VecFlatStateDict | None:
+    """The :class:`~sb3_cic.envs.vec_dict_obs.VecFlatStateDict` among the VecEnv wrappers of ``env``, or None.
+
+    :param env: a VecEnv and its wrappers
+    """
+    while isinstance(env, VecEnvWrapper):
+        if isinstance(env, VecFlatStateDict):
+            return env
+        env = env.venv
+    return None
+
+
+def dict_layout_of(env: GymEnv | None) -> StateDictLayout | None:
+    """The :class:`~sb3_cic.envs.dict_obs.StateDictLayout` by which ``env`` (as :func:`prepare_env` returned it, or
+    as SB3 wrapped that) flattens a Dict observation, or None when it flattens none.
+
+    :param env: an env, a VecEnv or None
+    """
+    if isinstance(env, VecEnv):
+        flat = find_vec_flat_state_dict(env)
+        if flat is not None:
+            return flat.layout
+        while isinstance(env, VecEnvWrapper):
+            env = env.venv
+        envs = getattr(env, "envs", None)  # a DummyVecEnv of FlatStateDict envs (a SubprocVecEnv's are not read)
+        env = envs[0] if envs else None
+    while isinstance(env, gym.Wrapper):
+        if isinstance(env, FlatStateDict):
+            return env.layout
+        env = env.env
+    return None
+
+
+class FlatVecNormalize:
+    """A ``VecNormalize`` of Dict observations as a model on flat ``[state, skill]`` observations sees it: what SB3's
+    off-policy algorithm and replay buffer call (``get_original_obs``, ``normalize_obs``, ``unnormalize_obs``) take and
+    return flat observations, with the Dict's normalised entries normalised by the ``VecNormalize``'s own statistics
+    and rule, the other entries and the skill as they are. Anything else (``save``, ``obs_rms``, the rewards, ``training``)
+    is the ``VecNormalize``'s.
+
+    :param vec_normalize: the ``VecNormalize`` of Dict observations
+    :param flat: the :class:`~sb3_cic.envs.vec_dict_obs.VecFlatStateDict` above it
+    :param top: the model's env (the skills are read from it: ``get_attr("skill")``)
+    """
+
+    def __init__(self, vec_normalize: VecNormalize, flat: VecFlatStateDict, top: VecEnv) -> None:
+        self.vec_normalize = vec_normalize
+        self.layout = flat.layout
+        self.top = top
+
+    def __getattr__(self, name: str) -> Any:
+        if name == "vec_normalize":  # not set yet (a copy being built)
+            raise AttributeError(name)
+        return getattr(self.vec_normalize, name)
+
+    def _map(self, obs: np.ndarray, rule: Any) -> np.ndarray:
+        """``obs`` with each normalised entry's part replaced by ``rule(part, its statistics)``."""
+        vec_normalize = self.vec_normalize
+        if not vec_normalize.norm_obs:
+            return obs
+        obs = np.array(obs, dtype=np.float32, copy=True)
+        for key in vec_normalize.norm_obs_keys:
+            part = obs[..., self.layout.slices[key]]
+            shape = vec_normalize.obs_rms[key].mean.shape
+            mapped = rule(part.reshape((*part.shape[:-1], *shape)), vec_normalize.obs_rms[key])
+            obs[..., self.layout.slices[key]] = np.reshape(mapped, part.shape)
+        return obs
+
+    def normalize_obs(self, obs: np.ndarray) -> np.ndarray:
+        """Flat observation(s) normalised as the ``VecNormalize`` normalises the Dict's entries.
+
+        :param obs: flat observation(s), with the skill if the model has one
+        """
+        return self._map(obs, self.vec_normalize._normalize_obs)
+
+    def unnormalize_obs(self, obs: np.ndarray) -> np.ndarray:
+        """The inverse of :meth:`normalize_obs`.
+
+        :param obs: normalised flat observation(s)
+        """
+        return self._map(obs, self.vec_normalize._unnormalize_obs)
+
+    def get_original_obs(self) -> np.ndarray:
+        """The envs' last observations before normalisation, flat, with the envs' current skills if the model adds
+        one."""
+        flat = self.layout.flatten(self.vec_normalize.get_original_obs(), batch=True)  # type: ignore[arg-type]
+        if self.top.observation_space.shape[0] == flat.shape[-1]:
+            return flat
+        skills = np.stack(self.top.get_attr("skill")).astype(np.float32)
+        return np.concatenate([flat, skills], axis=-1)
+
+
+def vec_normalize_of(env: VecEnv | None) -> VecNormalize | FlatVecNormalize | None:
+    """What a model on ``env`` uses as SB3's ``_vec_normalize_env``: SB3's ``unwrap_vec_normalize(env)``, seen
+    through :class:`FlatVecNormalize` when that ``VecNormalize`` is of Dict observations flattened above it.
+
+    :param env: the model's VecEnv, or None
+    """
+    vec_normalize = unwrap_vec_normalize(env) if env is not None else None
+    flat = find_vec_flat_state_dict(env) if env is not None else None
+    if vec_normalize is None or flat is None or not isinstance(vec_normalize.observation_space, spaces.Dict):
+        return vec_normalize
+    return FlatVecNormalize(vec_normalize, flat, env)
 
 
 def check_finite_step(step: int, observation: Any, reward: Any, infos: list[dict[str, Any]]) -> None:

@@ -9,7 +9,8 @@ import numpy as np
 from stable_baselines3.common.type_aliases import GymEnv
 from stable_baselines3.common.vec_env import VecEnv
 
-from sb3_cic.common.env_util import find_skill_wrapper, prepare_env
+from sb3_cic.common.env_util import dict_layout_of, find_skill_wrapper, prepare_env, vec_normalize_of
+from sb3_cic.envs.dict_obs import StateDictLayout
 from sb3_cic.skills import SkillPrior
 
 
@@ -26,6 +27,9 @@ class SkillMixin:
     skill_resample_every: int | None
     #: Dict observations are flattened (the model was built with ``"MultiInputPolicy"``)
     multi_input: bool
+    #: how a Dict observation of the env is flattened (None: the model was built on flat observations)
+    dict_layout: StateDictLayout | None
+    _vec_normalize_env: Any
     #: the skill chosen for fine-tuning, once a skill-selection callback has chosen it
     finetune_skill: np.ndarray | None
     #: the skill last given to :meth:`set_skill` (appended to plain observations when there is no env)
@@ -93,18 +97,25 @@ class SkillMixin:
 
         A skill-based model also takes plain state observations (as a plain env or a VecEnv of plain envs
         returns them, for example in ``evaluate_policy`` or SB3's ``EvalCallback``): it appends
-        :meth:`current_skill`. ``[state, skill]`` observations are used as they are.
+        :meth:`current_skill`. ``[state, skill]`` observations are used as they are. A model built with
+        ``"MultiInputPolicy"`` takes the env's own Dict observations (single, or a VecEnv's batch): they are flattened
+        as the training env flattens them (:class:`~sb3_cic.envs.dict_obs.StateDictLayout`), the skill appended, and the
+        actions returned are the env's (its bounds and dtype), as SB3's ``predict`` returns them.
 
         :param observation: the input observation(s)
         :param state: the last hidden states (unused: no recurrent policy)
         :param episode_start: the last masks (unused)
         :param deterministic: return deterministic actions
         """
+        layout = None
         if isinstance(observation, dict):
-            raise ValueError(
-                f"{type(self).__name__} acts on flat observations: model.wrap_env(env) flattens a Dict env as the "
-                "training env is (envs.FlatStateDict)"
-            )
+            layout = self.dict_layout
+            if layout is None:
+                raise ValueError(
+                    f"{type(self).__name__} was built on flat observations, not a Dict: a Dict env needs a model "
+                    "built with MultiInputPolicy on it"
+                )
+            observation = layout.flatten(observation)
         if isinstance(observation, np.ndarray) and observation.ndim > 0:
             size = observation.shape[-1]
             if self.skill_prior is not None and size == self.state_dim:
@@ -117,7 +128,8 @@ class SkillMixin:
                     f"{self.env_id or 'unknown'}), got shape {observation.shape}: is this env of another domain? "
                     "model.wrap_env(env) wraps an env of the model's domain as the training env is"
                 )
-        return super().predict(observation, state, episode_start, deterministic)  # type: ignore[misc]
+        actions, state = super().predict(observation, state, episode_start, deterministic)  # type: ignore[misc]
+        return (actions, state) if layout is None else (layout.env_action(actions), state)
 
     def wrap_env(self, env: GymEnv | str) -> GymEnv:
         """``env`` (an id, an env or a VecEnv) wrapped as the training env is, for evaluation or SB3 callbacks.
@@ -140,10 +152,13 @@ class SkillMixin:
         return env
 
     def set_env(self, env: GymEnv | str, force_reset: bool = True) -> None:
-        """Use ``env`` for training from now on (see SB3's ``set_env``); a plain env gets the model's skill wrapper.
+        """Use ``env`` for training from now on (see SB3's ``set_env``); a plain env gets the model's skill wrapper, a
+        Dict env is flattened (:func:`~sb3_cic.common.env_util.prepare_env`).
 
         :param env: environment id, environment or VecEnv
         :param force_reset: reset the env before the next ``learn``
         """
         env = prepare_env(env, self.skill_prior, self.skill_resample_every, self.multi_input)
         super().set_env(env, force_reset)  # type: ignore[misc]
+        self.dict_layout = dict_layout_of(self.env) or self.dict_layout
+        self._vec_normalize_env = vec_normalize_of(self.env)  # type: ignore[arg-type]
