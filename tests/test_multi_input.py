@@ -134,6 +134,7 @@ def test_a_shimmy_id_trains_predicts_evaluates_saves_loads_and_finetunes_on_its_
         loaded.set_skill(model.current_skill())
         np.testing.assert_array_equal(loaded.predict(raw_obs, deterministic=True)[0], action)
     loaded = CIC.load(tmp_path / "cic_walker", env=env)
+    assert loaded.wrap_env(env).observation_space == loaded.observation_space  # flat, with the skill
     loaded.learn(40, reset_num_timesteps=False)
     assert loaded.num_timesteps == 240
 
