@@ -6,7 +6,7 @@ pre-trains DIAYN, ICM and a *Fixed* baseline (an intrinsic reward of 1 per step:
 hopper in both, reward-free, and records the extrinsic reward. This script does that:
 
 * ``gym``: Gymnasium's ``Hopper-v5`` (terminates when unhealthy, time limit 1,000 steps; its reward: healthy 1
-  + forward velocity - control cost), wrapped with :class:`envs.RewardFree` (reward 0, the env's reward in
+  + forward velocity - control cost), wrapped with :class:`sb3_cic.envs.RewardFree` (reward 0, the env's reward in
   ``info["task_reward"]``) for pre-training; the plain ``Hopper-v5`` for evaluation;
 * ``dmc``: ``URLB/hopper-v0`` (dm_control's hopper hop through this project's adapter, reward 0, the hop reward
   in ``info["task_reward"]``, 1,000 steps, never terminated) for pre-training; ``URLB/hopper-hop-v0`` for
@@ -57,8 +57,8 @@ import torch as th  # noqa: E402
 from stable_baselines3.common.callbacks import BaseCallback  # noqa: E402
 
 import sb3_cic  # noqa: E402,F401  (registers the ids)
-from envs import RewardFree  # noqa: E402
-from envs.skill_wrapper import SkillObservationWrapper  # noqa: E402
+from sb3_cic.envs import RewardFree  # noqa: E402
+from sb3_cic.envs.skill_wrapper import SkillObservationWrapper  # noqa: E402
 from sb3_cic import DIAYN, ICM, URLBDDPG, Fixed  # noqa: E402
 from sb3_cic.common.env_util import find_skill_wrapper  # noqa: E402
 

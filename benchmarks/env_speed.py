@@ -4,9 +4,9 @@ For each environment, steps per second with random actions (episodes are reset w
 resets included in the time) are measured for
 
 * ``raw``: the ``dm_env.Environment`` itself (``suite.load`` or the URLB task loaders of
-  :mod:`envs.tasks`), stepped with actions drawn uniformly within the physics bounds;
+  :mod:`sb3_cic.envs.tasks`), stepped with actions drawn uniformly within the physics bounds;
 * ``shimmy``: ``FlattenObservation(DmControlCompatibilityV0(dm_env))``;
-* ``ours``: ``gymnasium.make("URLB/<domain>-<task>-v0")`` (:class:`envs.dmc.DMCEnv`).
+* ``ours``: ``gymnasium.make("URLB/<domain>-<task>-v0")`` (:class:`sb3_cic.envs.dmc.DMCEnv`).
 
 Actions are drawn before the timed loops, so only the environments are timed. The three kinds start
 from the same seed and get the same actions (ours in [-1, 1], the others the same controls in physics
@@ -36,8 +36,8 @@ import numpy as np  # noqa: E402
 from gymnasium.wrappers import FlattenObservation  # noqa: E402
 from shimmy import DmControlCompatibilityV0  # noqa: E402
 
-import envs  # noqa: E402,F401  (registers the URLB ids)
-from envs.tasks import loader  # noqa: E402
+from sb3_cic import envs  # noqa: E402,F401  (registers the URLB ids)
+from sb3_cic.envs.tasks import loader  # noqa: E402
 
 #: (domain, task, fraction of --steps): jaco steps ~5-10x slower, so it runs fewer steps
 ENVIRONMENTS: list[tuple[str, str, float]] = [

@@ -61,7 +61,7 @@ import numpy as np  # noqa: E402
 import torch as th  # noqa: E402
 
 import sb3_cic  # noqa: E402,F401  (registers the ids)
-from envs.gridworld import GridWorldEnv  # noqa: E402
+from sb3_cic.envs.gridworld import GridWorldEnv  # noqa: E402
 from sb3_cic import CIC, DIAYN, URLBDDPG  # noqa: E402
 
 ENV_ID = "URLB/gridworld-v0"

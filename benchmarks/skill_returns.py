@@ -25,7 +25,7 @@ import torch as th  # noqa: E402
 from stable_baselines3.common.evaluation import evaluate_policy  # noqa: E402
 from stable_baselines3.common.monitor import Monitor  # noqa: E402
 
-import envs  # noqa: E402, F401  (registers the URLB ids)
+from sb3_cic import envs  # noqa: E402, F401  (registers the URLB ids)
 from sb3_cic import zoo  # noqa: E402
 from sb3_cic.common.save_util import read_saved_data  # noqa: E402
 

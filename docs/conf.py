@@ -57,7 +57,7 @@ html_theme_options = {"navigation_depth": 3, "collapse_navigation": False}
 def _public_objects() -> set[int]:
     """ids of the objects that ``sb3_cic`` and ``envs`` export: the API pages document them under their
     public import path (``sb3_cic.CIC``), so the module pages leave them out instead of repeating them."""
-    import envs
+    from sb3_cic import envs
 
     return {id(getattr(package, name)) for package in (sb3_cic, envs) for name in package.__all__}
 

@@ -7,7 +7,7 @@
   physics (walker stand, quadruped walk, jaco reach_top_left, point_mass reach, hopper hop); the reward is 0
   and the task reward is reported in ``info["task_reward"]``;
 * ``URLB/gridworld-v0``: the reward-free 10 x 10 gridworld of the CIC paper's Appendix G
-  (:class:`~envs.gridworld.GridWorldEnv`).
+  (:class:`~sb3_cic.envs.gridworld.GridWorldEnv`).
 
 On Linux without a display (no ``DISPLAY`` or ``WAYLAND_DISPLAY``) and with ``MUJOCO_GL`` unset, importing
 this package sets ``MUJOCO_GL`` to the headless backend that can load (``egl``, else ``osmesa``, else
@@ -38,18 +38,22 @@ from typing import TYPE_CHECKING, Any  # noqa: E402
 
 import gymnasium as gym  # noqa: E402
 
-from envs.dict_obs import FlatStateDict  # noqa: E402
-from envs.gridworld import GRID_EPISODE_LENGTH, GridWorldEnv  # noqa: E402
-from envs.reward_free import RewardFree  # noqa: E402
-from envs.tasks import DOMAIN_TASKS, URLB_TASKS, loader  # noqa: E402
+from sb3_cic.envs.dict_obs import FlatStateDict  # noqa: E402
+from sb3_cic.envs.gridworld import GRID_EPISODE_LENGTH, GridWorldEnv  # noqa: E402
+from sb3_cic.envs.reward_free import RewardFree  # noqa: E402
+from sb3_cic.envs.tasks import DOMAIN_TASKS, URLB_TASKS, loader  # noqa: E402
 
 if TYPE_CHECKING:
-    from envs.dmc import DMCEnv
-    from envs.skill_wrapper import SkillObservationWrapper, VecSkillObservation
+    from sb3_cic.envs.dmc import DMCEnv
+    from sb3_cic.envs.skill_wrapper import SkillObservationWrapper, VecSkillObservation
 
 #: the names that load their module on first use (dm_control, Stable-Baselines3 and torch are not imported by
 #: registering the ids: ``sb3-cic --help`` stays fast)
-_LAZY = {"DMCEnv": "envs.dmc", "SkillObservationWrapper": "envs.skill_wrapper", "VecSkillObservation": "envs.skill_wrapper"}
+_LAZY = {
+    "DMCEnv": "sb3_cic.envs.dmc",
+    "SkillObservationWrapper": "sb3_cic.envs.skill_wrapper",
+    "VecSkillObservation": "sb3_cic.envs.skill_wrapper",
+}
 
 
 def __getattr__(name: str) -> Any:
@@ -59,7 +63,7 @@ def __getattr__(name: str) -> Any:
         value = getattr(importlib.import_module(_LAZY[name]), name)
         globals()[name] = value
         return value
-    raise AttributeError(f"module 'envs' has no attribute {name!r}")
+    raise AttributeError(f"module 'sb3_cic.envs' has no attribute {name!r}")
 
 
 def __dir__() -> list[str]:
@@ -70,7 +74,7 @@ EPISODE_LENGTH = {
     "walker": 1000, "quadruped": 1000, "jaco": 250, "point_mass": 1000, "hopper": 1000, "gridworld": GRID_EPISODE_LENGTH
 }
 #: the ids of the envs that are not dm_control's, and their entry points
-OTHER_ENVS = {"URLB/gridworld-v0": "envs.gridworld:GridWorldEnv"}
+OTHER_ENVS = {"URLB/gridworld-v0": "sb3_cic.envs.gridworld:GridWorldEnv"}
 
 
 def make_dmc(domain: str, task: str, reward_free: bool = False, **kwargs) -> DMCEnv:
@@ -79,9 +83,9 @@ def make_dmc(domain: str, task: str, reward_free: bool = False, **kwargs) -> DMC
     :param domain: URLB domain
     :param task: task of that domain
     :param reward_free: return reward 0 (pre-training), keeping the task reward in ``info``
-    :param kwargs: passed to :class:`envs.dmc.DMCEnv` (``render_mode``, ``render_size``, ...)
+    :param kwargs: passed to :class:`sb3_cic.envs.dmc.DMCEnv` (``render_mode``, ``render_size``, ...)
     """
-    from envs.dmc import DMCEnv
+    from sb3_cic.envs.dmc import DMCEnv
 
     return DMCEnv(loader(domain, task), reward_free=reward_free, **kwargs)
 
@@ -102,7 +106,7 @@ def register_envs() -> None:
                 continue
             gym.register(
                 env_id,
-                entry_point="envs:make_dmc",
+                entry_point="sb3_cic.envs:make_dmc",
                 kwargs={"domain": domain, "task": task, "reward_free": reward_free},
                 # the dm_control time limit ends the episode; no extra TimeLimit wrapper
                 max_episode_steps=None,

@@ -11,7 +11,7 @@ import numpy as np
 class RewardFree(gym.Wrapper):
     """Reward 0 at every step; the env's own reward goes to ``info["task_reward"]`` (recorded, never learnt from).
 
-    The same interface as :class:`~envs.dmc.DMCEnv` with ``reward_free=True``: a method pre-trains on its intrinsic
+    The same interface as :class:`~sb3_cic.envs.dmc.DMCEnv` with ``reward_free=True``: a method pre-trains on its intrinsic
     reward alone (its relabel hook would replace the stored reward anyway; with this wrapper nothing extrinsic is
     even stored), and a callback reads the extrinsic return from the infos. Episode ends pass through unchanged:
     Gymnasium's ``Hopper-v5`` still *terminates* when the hopper falls, the leak that the CIC paper's Appendix I

@@ -8,7 +8,7 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
-import envs  # noqa: F401  (registers the Gymnasium ids)
+from sb3_cic import envs  # noqa: F401  (registers the Gymnasium ids)
 from sb3_cic.version import __version__
 
 if TYPE_CHECKING:

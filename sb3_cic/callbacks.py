@@ -12,7 +12,7 @@ from stable_baselines3.common.callbacks import EvalCallback
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import DummyVecEnv
 
-from envs.skill_wrapper import SkillObservationWrapper
+from sb3_cic.envs.skill_wrapper import SkillObservationWrapper
 from sb3_cic.common.env_util import make_env, prepare_env
 from sb3_cic.common.resumable import ResumableCallback, env_state, set_env_state
 from sb3_cic.constants import normalized_score

@@ -47,7 +47,7 @@ class URLBDDPG(MethodMixin, SkillMixin, LeanRolloutMixin, SaveLoadMixin, DDPG):
 
     A method (``sb3_cic.methods``) is this class plus four parts, declared as class attributes
     (:class:`~sb3_cic.common.method.MethodMixin`): a skill prior (the env is wrapped with
-    :class:`~envs.SkillObservationWrapper`), a reward module, a fine-tuning skill choice, the critic layers
+    :class:`~sb3_cic.envs.SkillObservationWrapper`), a reward module, a fine-tuning skill choice, the critic layers
     that fine-tuning keeps. One update is one step on a sampled batch (:meth:`_step`): in pre-training
     (``reward_free=True``) the replay buffer's relabel hook trains the reward module on the batch and replaces
     its reward with the intrinsic reward; then the critic, actor and target steps. The step's metrics stay on the

@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from envs.tasks import DOMAIN_TASKS
+from sb3_cic.envs.tasks import DOMAIN_TASKS
 from sb3_cic.common.arguments import argument_parser, device_type, option_type
 from sb3_cic.constants import DEFAULT_SNAPSHOTS
 

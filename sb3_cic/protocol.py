@@ -31,7 +31,7 @@ import yaml
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.utils import set_random_seed
 
-from envs.tasks import DOMAIN_TASKS
+from sb3_cic.envs.tasks import DOMAIN_TASKS
 from sb3_cic import zoo
 from sb3_cic.callbacks import SkillGridSweepCallback, URLBEvalCallback
 from sb3_cic.common.fast_update import enable_tf32

@@ -80,7 +80,7 @@ def rollout_skills(
     frames: list[list[np.ndarray]] = [[] for _ in range(steps + 1)]
     positions = np.zeros((len(skills), steps + 1, 3))
     kwargs: dict[str, Any] = {"render_mode": "rgb_array", "render_size": (size, size)} if render else {}
-    from envs import SkillObservationWrapper
+    from sb3_cic.envs import SkillObservationWrapper
 
     for i, skill in enumerate(skills):
         env = SkillObservationWrapper(gym.make(env_id, **kwargs), model.skill_prior, resample_every=None)

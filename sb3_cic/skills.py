@@ -1,6 +1,6 @@
 """Skill priors: what a skill ``z`` is, how it is sampled and how a grid of candidates is made.
 
-A prior is used by :class:`envs.SkillObservationWrapper` (which owns the current skill) and by the
+A prior is used by :class:`sb3_cic.envs.SkillObservationWrapper` (which owns the current skill) and by the
 fine-tuning callbacks (which sweep its :meth:`SkillPrior.grid`).
 """
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import copy
+import importlib.resources
 import io
 from pathlib import Path
 from typing import Any, Sequence
@@ -26,13 +27,14 @@ import yaml
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.type_aliases import GymEnv
 
-import envs  # noqa: F401  (registers the URLB ids)
-from envs.skill_wrapper import SkillObservationWrapper
+from sb3_cic import envs  # noqa: F401  (registers the URLB ids)
+from sb3_cic.envs.skill_wrapper import SkillObservationWrapper
 from sb3_cic.ddpg import URLBDDPG
 from sb3_cic.parsers import SMALL_SETTINGS
 
-#: folder of the rl-zoo yaml files of this repository (``zoo_configs/<algo>.yml``)
-CONFIG_DIR = Path(__file__).resolve().parent.parent / "zoo_configs"
+#: folder of the rl-zoo yaml files (``zoo_configs/<algo>.yml`` of the repository, installed as the package
+#: ``sb3_cic.zoo_configs``: found through the package, in a checkout and from a wheel alike)
+CONFIG_DIR = Path(str(importlib.resources.files("sb3_cic.zoo_configs")))
 
 #: CPU-sized hyperparameters (``sb3-cic train --small``): :data:`sb3_cic.parsers.SMALL_SETTINGS` as rl-zoo overrides
 SMALL_HYPERPARAMS: dict[str, Any] = {
@@ -126,7 +128,8 @@ def skill_prior_of(algo: str, **algo_kwargs: Any) -> tuple[Any, int | None]:
 def skill_wrapper(
     env: gym.Env, algo: str, skill: Sequence[float] | None = None, resample_every: int | None = -1, **algo_kwargs: Any
 ) -> gym.Env:
-    """rl-zoo ``env_wrapper`` of the skill-based methods: :class:`~envs.SkillObservationWrapper` with the prior of ``algo``.
+    """rl-zoo ``env_wrapper`` of the skill-based methods: :class:`~sb3_cic.envs.SkillObservationWrapper` with the
+    prior of ``algo``.
 
     In a yaml entry::
 

@@ -10,7 +10,7 @@ import torch as th
 from stable_baselines3.common.type_aliases import ReplayBufferSamples
 
 import sb3_cic  # noqa: F401
-from envs import SkillObservationWrapper
+from sb3_cic.envs import SkillObservationWrapper
 from sb3_cic import CIC, SkillGridSweepCallback
 from sb3_cic.rewards.base import RewardModule
 from sb3_cic.rewards.cic import CICReward

@@ -208,7 +208,7 @@ def test_clear_errors_for_unsupported_spaces():
 
 
 def test_skill_size_mismatch_is_clear_error(tiny):
-    from envs import SkillObservationWrapper
+    from sb3_cic.envs import SkillObservationWrapper
     from sb3_cic.skills import UniformSkillPrior
 
     env = SkillObservationWrapper(gym.make("URLB/point_mass-v0"), UniformSkillPrior(5))

@@ -8,7 +8,7 @@ import pytest
 from gymnasium.utils.env_checker import check_env as gym_check_env
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
-import envs
+from sb3_cic import envs
 import sb3_cic  # noqa: F401  (registers the ids as well)
 
 DIMS = {

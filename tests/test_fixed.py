@@ -13,7 +13,7 @@ import torch as th
 from gymnasium import spaces
 
 import sb3_cic
-from envs import RewardFree
+from sb3_cic.envs import RewardFree
 from sb3_cic import Fixed, URLBDDPG, zoo
 from sb3_cic.rewards.fixed import ConstantReward
 from sb3_cic.tensor_buffer import TensorReplayBuffer

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import sb3_cic  # noqa: F401  (registers the ids)
-from envs.gridworld import GridWorldEnv
+from sb3_cic.envs.gridworld import GridWorldEnv
 from sb3_cic import CIC, DIAYN
 
 

@@ -13,7 +13,7 @@ import torch as th
 import yaml
 from stable_baselines3.common.type_aliases import ReplayBufferSamples
 
-from envs.skill_wrapper import SkillSchedule
+from sb3_cic.envs.skill_wrapper import SkillSchedule
 from sb3_cic import CIC, MOSS, MixtureSkillPrior, SkillGridSweepCallback
 from sb3_cic.cli import main
 from sb3_cic.protocol import Settings, run_protocol

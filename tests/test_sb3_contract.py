@@ -19,7 +19,7 @@ from stable_baselines3.common.noise import OrnsteinUhlenbeckActionNoise
 from stable_baselines3.common.torch_layers import FlattenExtractor
 from stable_baselines3.common.utils import get_device
 
-from envs import SkillObservationWrapper, VecSkillObservation
+from sb3_cic.envs import SkillObservationWrapper, VecSkillObservation
 from sb3_cic import APS, APT, CIC, DIAYN, ICM, MOSS, RND, SMM, Disagreement, ProtoRL, URLBDDPG, URLBReplayBuffer
 from sb3_cic.policies import URLBActor
 

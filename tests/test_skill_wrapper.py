@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 from stable_baselines3.common.vec_env import DummyVecEnv
 
-import envs  # noqa: F401
-from envs import SkillObservationWrapper
+from sb3_cic import envs  # noqa: F401
+from sb3_cic.envs import SkillObservationWrapper
 from sb3_cic.skills import OneHotSkillPrior, SphereSkillPrior, UniformSkillPrior
 
 

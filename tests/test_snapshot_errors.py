@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from stable_baselines3.common.callbacks import EvalCallback
 
-from envs import SkillObservationWrapper
+from sb3_cic.envs import SkillObservationWrapper
 from sb3_cic import APT, CIC, UniformSkillPrior, URLBDDPG, __version__
 
 

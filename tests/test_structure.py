@@ -8,7 +8,8 @@ not an edge (it would make every module depend on ``sb3_cic/__init__.py``).
 
 The layers, from the bottom:
 
-* the library: ``envs`` and ``sb3_cic`` (algorithms, methods, rewards, callbacks, ``common``, zoo...);
+* the library: ``sb3_cic`` (algorithms, methods, rewards, callbacks, ``common``, zoo...) and its environments
+  ``sb3_cic.envs`` (the repository's ``envs/``);
 * the study layer: ``sb3_cic.study`` and ``sb3_cic.protocol``, the run code that the study and
   ``sb3-cic protocol`` share (``protocol`` belongs to the study layer: a run checkpoints itself with
   ``sb3_cic.study.checkpoint`` and lays out its folder with ``sb3_cic.study.layout``);
@@ -23,7 +24,8 @@ import ast
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = ("sb3_cic", "envs")
+#: each package's dotted name and its folder in the repository (``envs/`` is installed as ``sb3_cic.envs``)
+PACKAGES = {"sb3_cic": "sb3_cic", "sb3_cic.envs": "envs"}
 #: the study layer (see the module docstring)
 STUDY = ("sb3_cic.study", "sb3_cic.protocol")
 #: the entry points, above everything
@@ -33,9 +35,9 @@ ENTRY_POINTS = ("sb3_cic.cli", "sb3_cic.demo")
 def module_files(root: Path = ROOT) -> dict[str, Path]:
     """Every module of :data:`PACKAGES` under ``root``, by dotted name (a package by its own name)."""
     modules = {}
-    for package in PACKAGES:
-        for path in sorted((root / package).rglob("*.py")):
-            parts = path.relative_to(root).with_suffix("").parts
+    for package, folder in PACKAGES.items():
+        for path in sorted((root / folder).rglob("*.py")):
+            parts = (*package.split("."), *path.relative_to(root / folder).with_suffix("").parts)
             name = ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
             modules[name] = path
     return modules
@@ -61,7 +63,7 @@ def imports_of(module: str, path: Path, modules: dict[str, Path]) -> set[str]:
         else:
             continue
         for target in targets:
-            while target and target not in modules:  # ``import envs.tasks.walker as w``: the module itself
+            while target and target not in modules:  # ``import sb3_cic.envs.tasks.walker as w``: the module itself
                 target = target.rpartition(".")[0]
             if target and target != module:
                 found.add(target)

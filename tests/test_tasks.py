@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from dm_control.utils import rewards
 
-import envs  # noqa: F401  (registers the URLB ids)
-from envs.tasks import URLB_TASKS, jaco, quadruped, walker
+from sb3_cic import envs  # noqa: F401  (registers the URLB ids)
+from sb3_cic.envs.tasks import URLB_TASKS, jaco, quadruped, walker
 
 INF = float("inf")
 OBS_DIM = {"walker": 24, "quadruped": 78, "jaco": 55}

@@ -43,18 +43,18 @@ def loader(domain: str, task: str) -> Callable[[int | None], dm_env.Environment]
         raise ValueError(f"unknown URLB task {domain}/{task}; known: {DOMAIN_TASKS}")
     if domain == "walker":
         if task == "flip":
-            from envs.tasks import walker
+            from sb3_cic.envs.tasks import walker
 
             return walker.flip
         return _suite("walker", task)
     if domain == "quadruped":
         if task in ("stand", "jump"):
-            from envs.tasks import quadruped
+            from sb3_cic.envs.tasks import quadruped
 
             return getattr(quadruped, task)
         return _suite("quadruped", task)
     if domain == "jaco":
-        from envs.tasks import jaco
+        from sb3_cic.envs.tasks import jaco
 
         return lambda seed: jaco.make(task, seed)
     if domain == "point_mass":

@@ -22,7 +22,7 @@ REWARD_FREE_ID = re.compile(r"URLB/[A-Za-z0-9_]+-v0")
 
 
 def find_skill_wrapper(env: gym.Env) -> SkillObservationWrapper | None:
-    """The :class:`~envs.SkillObservationWrapper` among the wrappers of ``env``, or None.
+    """The :class:`~sb3_cic.envs.SkillObservationWrapper` among the wrappers of ``env``, or None.
 
     :param env: a gymnasium env and its wrappers
     """
@@ -49,7 +49,7 @@ def env_id_of(env: GymEnv | str | None) -> str | None:
 
 def is_reward_free_env(env: GymEnv | str | None) -> bool:
     """Whether ``env`` is one of URLB's reward-free pre-training envs (``URLB/<domain>-v0``) or an env wrapped with
-    :class:`~envs.reward_free.RewardFree`, whose reward is 0.
+    :class:`~sb3_cic.envs.reward_free.RewardFree`, whose reward is 0.
 
     :param env: environment id, environment or VecEnv
     """

@@ -57,7 +57,7 @@ def env_layers(env: gym.Env) -> list[gym.Env]:
 def env_state(env: gym.Env) -> list[Any]:
     """The checkpoint state of each layer of ``env`` (its ``get_checkpoint_state``, None for a layer without).
 
-    Taken just after a reset: :class:`~envs.dmc.DMCEnv` saves the random state its episode started from.
+    Taken just after a reset: :class:`~sb3_cic.envs.dmc.DMCEnv` saves the random state its episode started from.
 
     :param env: a gymnasium env and its wrappers
     """

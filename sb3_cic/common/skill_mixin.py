@@ -19,7 +19,7 @@ class SkillMixin:
 
     Mixed in before the algorithm (``class URLBDDPG(SkillMixin, DDPG)``): it reads the model's
     ``skill_prior`` (None: no skill), ``skill_resample_every``, ``finetune_skill``, ``env`` and ``_last_obs``.
-    The training envs own the current skill (:class:`~envs.SkillObservationWrapper`); the model sets it
+    The training envs own the current skill (:class:`~sb3_cic.envs.SkillObservationWrapper`); the model sets it
     through ``env_method("set_skill", z, fixed)``.
     """
 
@@ -134,8 +134,8 @@ class SkillMixin:
     def wrap_env(self, env: GymEnv | str) -> GymEnv:
         """``env`` (an id, an env or a VecEnv) wrapped as the training env is, for evaluation or SB3 callbacks.
 
-        A skill-based model adds its skill wrapper (:class:`~envs.SkillObservationWrapper`, or
-        :class:`~envs.VecSkillObservation` for a VecEnv of plain envs), with the skill fixed to the
+        A skill-based model adds its skill wrapper (:class:`~sb3_cic.envs.SkillObservationWrapper`, or
+        :class:`~sb3_cic.envs.VecSkillObservation` for a VecEnv of plain envs), with the skill fixed to the
         fine-tuning skill once one is chosen; other models check the env only. ``predict`` also takes
         plain state observations, so SB3's ``EvalCallback(plain_env)`` works without it.
 

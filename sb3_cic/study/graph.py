@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
 
-from envs.tasks import DOMAIN_TASKS
+from sb3_cic.envs.tasks import DOMAIN_TASKS
 from sb3_cic import zoo
 from sb3_cic.constants import EXPERT_SCORES
 from sb3_cic.evaluation import read_run_result

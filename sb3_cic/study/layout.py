@@ -27,7 +27,7 @@ from __future__ import annotations
 import zipfile
 from pathlib import Path
 
-from envs.tasks import DOMAIN_TASKS
+from sb3_cic.envs.tasks import DOMAIN_TASKS
 
 
 def study_file(study: str | Path) -> Path:
