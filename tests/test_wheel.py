@@ -108,12 +108,15 @@ def test_a_users_own_envs_folder_does_not_shadow_the_environments(installed: Pat
     assert result.stdout.strip().splitlines()[-1] == "the user CIC 40"
 
 
-def test_the_command_line_trains_and_runs_the_protocol_from_an_empty_folder(installed: Path, tmp_path: Path):
+def test_the_command_line_trains_fine_tunes_and_runs_the_protocol_from_an_empty_folder(installed: Path, tmp_path: Path):
     sb3_cic = str(installed / "sb3-cic")
     _run([sb3_cic, "train", "--algo", "cic", "--env", "URLB/walker-v0", "--small", "-n", "200",
           "--hyperparams", "learning_starts:100"], tmp_path)
-    saved = sorted(p.relative_to(tmp_path) for p in tmp_path.glob("logs/cic/URLB-walker-v0_1/*.zip"))
-    assert saved, sorted(str(p) for p in tmp_path.rglob("*"))
+    pretrained = tmp_path / "logs" / "cic" / "URLB-walker-v0_1" / "URLB-walker-v0.zip"
+    assert pretrained.is_file(), sorted(str(p) for p in tmp_path.rglob("*"))
+    _run([sb3_cic, "finetune", "--algo", "cic", "--env", "URLB/walker-flip-v0", "-i", str(pretrained), "--small",
+          "-n", "200", "--hyperparams", "learning_starts:100"], tmp_path)
+    assert (tmp_path / "logs" / "cic" / "URLB-walker-flip-v0_1" / "URLB-walker-flip-v0.zip").is_file()
     study = tmp_path / "study"
     _run([sb3_cic, "protocol", "--study", str(study), "--method", "cic", "--domain", "jaco", "--tasks", "reach_top_left",
           "--seeds", "0", "--small", "--pretrain-steps", "300", "--finetune-steps", "300", "--learning-starts", "100",
