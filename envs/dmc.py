@@ -28,6 +28,11 @@ _LAST = dm_env.StepType.LAST
 _DISABLE_CLAMPCTRL = 1 << 8
 
 
+class RenderError(gym.error.Error, RuntimeError):
+    """MuJoCo cannot render here (no OpenGL backend, or ``MUJOCO_GL=disable``): a ``gymnasium.error.Error`` (the
+    command line reports it in one line) and a ``RuntimeError``."""
+
+
 class DMCEnv(gym.Env):
     """A dm_control environment as a Gymnasium environment with a flat float32 observation.
 
@@ -197,7 +202,7 @@ class DMCEnv(gym.Env):
         try:
             return self.physics.render(*self.render_size, camera_id=self.camera_id)
         except Exception as error:  # no usable OpenGL backend
-            raise RuntimeError(
+            raise RenderError(
                 "MuJoCo could not render: no OpenGL backend is available. Set MUJOCO_GL=egl "
                 f"(or glfw with a display) before importing dm_control. Original error: {error!r}"
             ) from error

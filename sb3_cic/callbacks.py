@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import warnings
 from typing import Any
 
 import gymnasium as gym
@@ -13,6 +14,7 @@ from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import DummyVecEnv
 
 from sb3_cic.envs.skill_wrapper import SkillObservationWrapper
+from sb3_cic.common.arguments import parameter_default
 from sb3_cic.common.env_util import make_env, prepare_env
 from sb3_cic.common.resumable import ResumableCallback, env_state, set_env_state
 from sb3_cic.constants import normalized_score
@@ -85,6 +87,10 @@ class FixedSkillCallback(SkillSelectionCallback):
         self.choose(skill)
 
 
+class SkillSweepWarning(UserWarning):
+    """A fine-tuning skill sweep shorter than the paper's (fewer candidates): ``learning_starts`` below 4,000."""
+
+
 class SkillGridSweepCallback(SkillSelectionCallback):
     """The CIC paper's fine-tuning skill choice (Algorithm 1).
 
@@ -123,6 +129,15 @@ class SkillGridSweepCallback(SkillSelectionCallback):
         prior = self.model.skill_prior
         n = max(1, self.sweep_steps // self.window) if self.window else None  # a sweep shorter than a window: 1
         self.candidates = prior.grid(n)
+        paper_steps = parameter_default(type(self), "sweep_steps")
+        if self.window and self.sweep_steps < paper_steps:
+            warnings.warn(
+                f"the fine-tuning skill sweep tries {len(self.candidates)} candidates, not the paper's "
+                f"{len(prior.grid(paper_steps // self.window))}: it lasts learning_starts {self.sweep_steps} steps at "
+                f"{self.window} per candidate (learning_starts {paper_steps} for the full sweep)",
+                SkillSweepWarning,
+                stacklevel=2,
+            )
         self._window = max(1, min(self.window, self.sweep_steps) if self.window else self.sweep_steps // len(self.candidates))
         if len(self.candidates) < 1:
             raise ValueError("the skill grid sweep needs at least one candidate")

@@ -31,16 +31,21 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import errno
+import io
 import os
+import re
 import runpy
 import shutil
+import signal
 import sys
+import warnings
 from pathlib import Path
 from typing import Any, Iterator, NoReturn, Sequence
 
 import gymnasium as gym
 
-from sb3_cic.common.arguments import argument_parser, option_type
+from sb3_cic.common.arguments import argument_parser, check_device_available, device_type, option_type
 from sb3_cic.parsers import small_help
 
 USAGE = """usage: sb3-cic {train,finetune,enjoy,record-video,protocol,study,status,report,benchmark-report,skills} [options]
@@ -61,6 +66,27 @@ Run `sb3-cic <command> --help` for the options of a command (train, finetune, en
 
 #: the errors that mean bad input: reported in one line with exit code 2 (other exceptions raise as they are)
 USER_ERRORS: tuple[type[BaseException], ...] = (ValueError, FileNotFoundError, PermissionError, gym.error.Error)
+
+#: the ``OSError`` numbers of a file system that refuses a write (read-only, full, a file where a folder is needed...):
+#: bad input too, reported in one line with exit code 2 by :func:`main`
+FILESYSTEM_ERRORS: dict[int, str] = {
+    errno.EROFS: "read-only file system: choose a writable folder",
+    errno.EACCES: "permission denied: choose a folder you can write",
+    errno.EPERM: "operation not permitted: choose a folder you can write",
+    errno.EEXIST: "a file stands where a folder is needed: choose another path",
+    errno.ENOTDIR: "a file stands where a folder is needed: choose another path",
+    errno.EISDIR: "a folder stands where a file is needed: choose another path",
+    errno.ENOSPC: "no space left on the device",
+    errno.EDQUOT: "disk quota exceeded",
+    errno.ENAMETOOLONG: "file name too long",
+}
+
+#: what an interrupted command says on how to go on
+RESUME_ADVICE: dict[str, str] = {
+    "protocol": "each run keeps its last checkpoint: run the same command to resume",
+    "train": "run it again to start over (-i <model.zip> continues a saved model)",
+    "finetune": "run it again to start over",
+}
 
 
 class UsageError(Exception):
@@ -112,6 +138,47 @@ ZOO_COMMAND_OPTIONS: dict[str, tuple[str, ...]] = {
     "record-video": ("n_timesteps", "seed", "n_envs", "exp_id"),
 }
 
+#: the options of rl-zoo's own scripts (rl_zoo3 2.9: ``train`` for sb3-cic ``train`` and ``finetune``, ``enjoy``,
+#: ``record_video``): an option of a command line that neither sb3-cic nor rl-zoo knows (``--smal``, ``--save-frq``)
+#: is refused while the arguments are read, before torch and rl-zoo load (tests/test_first_hour.py compares these
+#: lists with rl-zoo's parsers)
+ZOO_SCRIPT_OPTIONS: dict[str, frozenset[str]] = {
+    "train": frozenset({
+        "--algo", "--conf-file", "--device", "--env", "--env-kwargs", "--eval-env-kwargs", "--eval-episodes",
+        "--eval-freq", "--gym-packages", "--help", "--hyperparams", "--log-folder", "--log-interval",
+        "--max-total-trials", "--n-eval-envs", "--n-evaluations", "--n-jobs", "--n-startup-trials", "--n-timesteps",
+        "--n-trials", "--no-optim-plots", "--num-threads", "--optimization-log-path", "--optimize-hyperparameters",
+        "--progress", "--pruner", "--sampler", "--save-freq", "--save-replay-buffer", "--seed", "--storage",
+        "--study-name", "--tensorboard-log", "--track", "--trained-agent", "--trial-id", "--truncate-last-trajectory",
+        "--uuid", "--vec-env", "--verbose", "--wandb-entity", "--wandb-group", "--wandb-project-name", "--wandb-tags",
+        "-P", "-conf", "-f", "-h", "-i", "-n", "-optimize", "-params", "-tags", "-tb", "-uuid",
+    }),
+    "enjoy": frozenset({
+        "--algo", "--custom-objects", "--deterministic", "--device", "--env", "--env-kwargs", "--exp-id", "--folder",
+        "--gym-packages", "--help", "--load-best", "--load-checkpoint", "--load-last-checkpoint", "--n-envs",
+        "--n-timesteps", "--no-render", "--norm-reward", "--num-threads", "--progress", "--reward-log", "--seed",
+        "--stochastic", "--verbose", "-P", "-f", "-h", "-n",
+    }),
+    "record_video": frozenset({
+        "--algo", "--custom-objects", "--deterministic", "--env", "--env-kwargs", "--exp-id", "--folder", "--help",
+        "--load-best", "--load-checkpoint", "--load-last-checkpoint", "--n-envs", "--n-timesteps", "--no-render",
+        "--output-folder", "--seed", "--stochastic", "-f", "-h", "-n", "-o",
+    }),
+}
+
+
+def _check_zoo_options(rest: Sequence[str], script: str) -> None:
+    """:class:`UsageError` for an option of ``rest`` (what sb3-cic passes on to rl-zoo's ``script``) that rl-zoo does
+    not know either (no abbreviation: ``--smal`` is not ``--small``); a negative number is a value, not an option.
+
+    :param rest: the arguments left for rl-zoo
+    :param script: ``"train"``, ``"enjoy"`` or ``"record_video"`` (:data:`ZOO_SCRIPT_OPTIONS`)
+    """
+    unknown = [arg for arg in rest if arg.startswith("-") and not re.fullmatch(r"-\.?\d.*", arg)
+               and arg.split("=", 1)[0] not in ZOO_SCRIPT_OPTIONS[script]]
+    if unknown:
+        raise UsageError(f"unrecognized arguments: {' '.join(unknown)}")
+
 
 def _add_zoo_options(parser: argparse.ArgumentParser, command: str) -> None:
     """The checked rl-zoo options of ``command`` (:data:`ZOO_COMMAND_OPTIONS`), default None (rl-zoo's)."""
@@ -153,6 +220,7 @@ def _passthrough_args(argv: Sequence[str], command: str) -> list[str]:
     if "--zoo-help" in argv:
         return ["--help"]
     known, rest = passthrough_parser(command).parse_known_args(list(argv))
+    _check_zoo_options(rest, command.replace("-", "_"))
     return ["-f", known.folder, *_zoo_options(known, command), *rest]
 
 
@@ -187,6 +255,8 @@ def zoo_parser(command: str) -> argparse.ArgumentParser:
     parser.add_argument("-f", "--log-folder", default="logs", help="log folder")
     parser.add_argument("--compile", action="store_true", help="compile_update=True: the update compiled as one graph")
     parser.add_argument("--tf32", action="store_true", help="TF32 matrix products on CUDA")
+    parser.add_argument("--device", type=device_type, default=None,
+                        help="torch device (default: rl-zoo's, auto: CUDA if any); cuda without one is refused")
     _add_zoo_options(parser, command)
     return parser
 
@@ -197,6 +267,15 @@ def _zoo_args(argv: Sequence[str], finetune: bool) -> tuple[list[str], str, str,
     if "--zoo-help" in argv:
         return ["--help"], "", "", ""
     known, rest = zoo_parser("finetune" if finetune else "train").parse_known_args(argv)
+    _check_zoo_options(rest, "train")  # a typo is refused here, before torch and rl-zoo load
+    if finetune and _reward_free(known.env):
+        raise ValueError(
+            f"{known.env} is a reward-free pre-training env (its reward is 0: the skill sweep would choose on zero "
+            "returns and nothing would be learned): fine-tune on a task id, e.g. "
+            f"{known.env.replace('-v0', '-<task>-v0')}"
+        )
+    if known.device is not None:
+        check_device_available(known.device)
     from sb3_cic import zoo
     from sb3_cic.common.fast_update import enable_tf32
     from sb3_cic.common.save_util import check_saved_model
@@ -218,7 +297,7 @@ def _zoo_args(argv: Sequence[str], finetune: bool) -> tuple[list[str], str, str,
             if not model.endswith(".zip") or not os.path.isfile(model):
                 raise ValueError(f"{key} {model}: no saved model (.zip) there")
             check_saved_model(model).check_class(cls)  # before rl-zoo makes its run folder
-    overrides = {**(zoo.SMALL_HYPERPARAMS if known.small else {}), **zoo.parse_hyperparams(known.hyperparams)}
+    overrides = {**(zoo.SMALL_HYPERPARAMS if known.small else {}), **_parse_hyperparams(zoo, known.hyperparams)}
     if known.compile:
         overrides["compile_update"] = True
     if known.tf32:
@@ -226,9 +305,39 @@ def _zoo_args(argv: Sequence[str], finetune: bool) -> tuple[list[str], str, str,
     overrides = zoo.zoo_overrides(config, known.env, overrides, known.eval_freq, known.eval_episodes)
     args = ["--algo", algo, "--env", known.env, "--conf-file", config, "-f", known.log_folder, "--eval-freq", "-1", *rest]
     args += _zoo_options(known, "finetune" if finetune else "train")
+    if known.device is not None:
+        args += ["--device", known.device]
     if overrides:
         args += ["--hyperparams", *zoo.format_hyperparams(overrides)]
     return args, algo, known.env, known.log_folder
+
+
+def _reward_free(env_id: str) -> bool:
+    """Whether ``env_id`` is a reward-free pre-training id (``URLB/<domain>-v0``, the gridworld): reward 0."""
+    from sb3_cic.envs import DOMAIN_TASKS, OTHER_ENVS
+
+    return env_id in OTHER_ENVS or env_id in {f"URLB/{domain}-v0" for domain in DOMAIN_TASKS}
+
+
+def _parse_hyperparams(zoo: Any, items: Sequence[str]) -> dict[str, Any]:
+    """``--hyperparams key:value ...`` as rl-zoo reads them (:func:`sb3_cic.zoo.parse_hyperparams`); a ``ValueError``
+    naming the item whose value is no Python expression (``batch_size:abc``).
+
+    :param zoo: the :mod:`sb3_cic.zoo` module
+    :param items: the ``key:value`` strings
+    """
+    hyperparams: dict[str, Any] = {}
+    for item in items:
+        if ":" not in item:
+            raise ValueError(f"--hyperparams {item}: expected key:value (e.g. batch_size:256)")
+        try:
+            hyperparams.update(zoo.parse_hyperparams([item]))
+        except Exception as error:  # eval of the value: NameError, SyntaxError...
+            raise ValueError(
+                f"--hyperparams {item}: the value is not a Python expression ({type(error).__name__}: {error}); "
+                "quote a string, e.g. key:'text'"
+            ) from None
+    return hyperparams
 
 
 class _BuildRecorder:
@@ -243,17 +352,27 @@ class _BuildRecorder:
         self.entry = entry
         self.__name__ = entry.__name__
         self.built = False
+        #: called once the model is built (:func:`_run_zoo_train` prints what rl-zoo printed until then)
+        self.on_built: Any = None
+
+    def _build(self, build: Any, *args: Any, **kwargs: Any) -> Any:
+        try:
+            model = build(*args, **kwargs)
+        except TypeError as error:  # a hyperparameter the algorithm does not take (--hyperparams or the yaml)
+            if "unexpected keyword argument" not in str(error):
+                raise
+            raise ValueError(f"{error}: not a hyperparameter of {self.__name__} (--hyperparams or the yaml)") from None
+        self.built = True
+        if self.on_built is not None:
+            self.on_built()
+        return model
 
     def __call__(self, *args: Any, **kwargs: Any) -> Any:
-        model = self.entry(*args, **kwargs)
-        self.built = True
-        return model
+        return self._build(self.entry, *args, **kwargs)
 
     def load(self, *args: Any, **kwargs: Any) -> Any:
         """The entry's ``load``."""
-        model = self.entry.load(*args, **kwargs)
-        self.built = True
-        return model
+        return self._build(self.entry.load, *args, **kwargs)
 
 
 def _remover(folder: Path) -> Any:
@@ -277,7 +396,9 @@ def _remover(folder: Path) -> Any:
 
 def _run_zoo_train(args: list[str], algo: str | None = None, log_folder: str | None = None) -> None:
     """rl_zoo3's ``train`` with ``args``; on a user error before the model of ``algo`` is built, the run folder
-    it made under ``log_folder/algo`` is removed (see :data:`USER_ERRORS`)."""
+    it made under ``log_folder/algo`` is removed (see :data:`USER_ERRORS`), and what rl-zoo printed until then (its
+    hyperparameters) is not shown: the error is the one line of the command. Once the model is built, that output
+    is printed and training prints as it goes."""
     from rl_zoo3 import ALGOS as algos
     from rl_zoo3.train import train
 
@@ -286,15 +407,27 @@ def _run_zoo_train(args: list[str], algo: str | None = None, log_folder: str | N
     remove = _remover(Path(str(log_folder)) / str(algo)) if recorder is not None else None
     if recorder is not None:
         algos[str(algo)] = recorder
-    argv = sys.argv
+    argv, stdout = sys.argv, sys.stdout
+    held = io.StringIO()
+
+    def release() -> None:
+        if sys.stdout is held:
+            sys.stdout = stdout
+            stdout.write(held.getvalue())
+
+    if recorder is not None:
+        recorder.on_built = release
+        sys.stdout = held
     sys.argv = ["rl_zoo3 train", *args]
     try:
         train()
-    except (*USER_ERRORS, UsageError):
+    except (*USER_ERRORS, UsageError, OSError):
         if remove is not None and recorder is not None and not recorder.built:
             remove()
+            sys.stdout = stdout  # what rl-zoo printed before the error is dropped
         raise
     finally:
+        release()
         sys.argv = argv
         if recorder is not None:
             algos[str(algo)] = entry
@@ -422,10 +555,13 @@ def _run(command: str, argv: list[str]) -> int:
     elif command == "protocol":
         from sb3_cic.parsers import build_parser
 
-        build_parser().parse_args(argv)  # --help and refused options before the protocol's code (torch) loads
+        args = build_parser().parse_args(argv)  # --help and refused options before the protocol's code (torch) loads
+        check_device_available(args.device)
         from sb3_cic.protocol import main as protocol_main
+        from sb3_cic.study.cli import interruptible
 
-        protocol_main(argv)
+        with interruptible():  # SIGTERM too: :func:`main` says how to resume
+            protocol_main(argv)
     elif command in ("study", "status"):
         from sb3_cic.study import cli as study_cli
 
@@ -447,6 +583,23 @@ def _run(command: str, argv: list[str]) -> int:
     return 0
 
 
+@contextlib.contextmanager
+def _one_line_warnings(prog: str) -> Iterator[None]:
+    """Within the block, a warning prints as one line, ``<prog>: warning: <message>`` (not Python's two lines of
+    file, line number and source)."""
+    saved = warnings.formatwarning
+
+    def format_warning(message: Any, category: Any, filename: str, lineno: int, line: str | None = None) -> str:
+        text = " ".join(part.strip() for part in str(message).splitlines() if part.strip())
+        return f"{prog}: warning: {text}\n"
+
+    warnings.formatwarning = format_warning  # type: ignore[assignment]
+    try:
+        yield
+    finally:
+        warnings.formatwarning = saved
+
+
 def _fail(prog: str, message: str, usage: bool = False) -> NoReturn:
     """Print ``<prog>: error: <message>`` as one line on stderr (and, for a refused command line, where the
     help is) and exit with code 2."""
@@ -459,8 +612,10 @@ def _fail(prog: str, message: str, usage: bool = False) -> NoReturn:
 def main(argv: Sequence[str] | None = None) -> None:
     """Entry point of ``sb3-cic``.
 
-    Bad input (:data:`USER_ERRORS`, a refused command line, a command's ``SystemExit`` with a message) is one
-    line on stderr and exit code 2, with nothing of the failed command left behind.
+    Bad input (:data:`USER_ERRORS`, a refused command line, a command's ``SystemExit`` with a message, a file system
+    that refuses a write: :data:`FILESYSTEM_ERRORS`) is one line on stderr and exit code 2, with nothing of the
+    failed command left behind. Ctrl-C (SIGINT; SIGTERM for ``protocol`` and ``study``) is one line that says how to
+    go on (:data:`RESUME_ADVICE`), exit code 130 (143). A warning is one line (:func:`_one_line_warnings`).
 
     :param argv: arguments (default: ``sys.argv[1:]``)
     """
@@ -471,12 +626,22 @@ def main(argv: Sequence[str] | None = None) -> None:
     command, rest = argv[0], argv[1:]
     prog = f"sb3-cic {command}"
     try:
-        with _one_line_usage_errors():
+        with _one_line_usage_errors(), _one_line_warnings(prog):
             code = _run(command, rest)
     except UsageError as error:
         _fail(prog, str(error), usage=True)
     except USER_ERRORS as error:
         _fail(prog, str(error) or type(error).__name__)
+    except OSError as error:
+        if error.errno not in FILESYSTEM_ERRORS:
+            raise
+        where = f" {os.fsdecode(error.filename)}" if error.filename is not None else ""
+        _fail(prog, f"cannot write{where}: {FILESYSTEM_ERRORS[error.errno]} ({error.strerror})")
+    except KeyboardInterrupt as interrupt:
+        signum = getattr(interrupt, "signum", signal.SIGINT)
+        advice = RESUME_ADVICE.get(command)
+        print(f"{prog}: interrupted ({signal.Signals(signum).name})" + (f"; {advice}" if advice else ""), file=sys.stderr)
+        raise SystemExit(128 + signum) from None
     except SystemExit as exit_:
         if isinstance(exit_.code, str):  # a command's own message
             _fail(prog, exit_.code)

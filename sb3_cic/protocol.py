@@ -35,6 +35,7 @@ from sb3_cic.envs.tasks import DOMAIN_TASKS
 from sb3_cic import zoo
 from sb3_cic.callbacks import SkillGridSweepCallback, URLBEvalCallback
 from sb3_cic.common.fast_update import enable_tf32
+from sb3_cic.common.progress import close_progress, progress_callback
 from sb3_cic.common.resumable import ResumableCallback
 from sb3_cic.common.arguments import RANGES, check_argument
 from sb3_cic.constants import DEFAULT_SNAPSHOTS, EXPERT_SCORES
@@ -82,7 +83,7 @@ class Settings:
     :param num_threads: torch threads (None: torch's default)
     :param compile_update: compile each run's update step (``compile_update=True``; the same math to float rounding)
     :param tf32: TF32 matrix products on CUDA (:func:`~sb3_cic.common.fast_update.enable_tf32`)
-    :param progress_bar: show SB3's progress bar
+    :param progress_bar: show progress: SB3's progress bar on a terminal, a line a minute elsewhere
     :param verbose: verbosity of the algorithms
     :param pretrain_checkpoint_every: steps between the checkpoints of a pre-training (0: none)
     :param finetune_checkpoint_every: steps between the checkpoints of a fine-tuning (0: none)
@@ -453,7 +454,7 @@ def pretrain(
         model = cls(env=env_id, seed=seed, **common, **hyperparams)
     snapshots = SnapshotCallback(folder.path, snapshot_steps(settings, steps), settings.verbose)
     wall = _train(model, folder, checkpoint, steps, [snapshots], settings.pretrain_checkpoint_every, settings,
-                  f"pretrain_{method}_{domain}")
+                  f"pretrain_{method}_{domain}", f"pretrain {method} {domain} seed {seed}")
     result = {
         "method": method,
         "domain": domain,
@@ -478,20 +479,29 @@ def _train(
     checkpoint_every: int,
     settings: Settings,
     tb_log_name: str,
+    label: str = "run",
 ) -> float:
-    """Train ``model`` to ``steps`` with ``callbacks`` and checkpoints, resuming from ``checkpoint``; return the
-    run's training seconds (before and after a resume)."""
+    """Train ``model`` to ``steps`` with ``callbacks`` and checkpoints, resuming from ``checkpoint`` (one line says
+    so); return the run's training seconds (before and after a resume). Progress (``settings.progress_bar``) is a
+    bar on a terminal, a line a minute elsewhere (:func:`~sb3_cic.common.progress.progress_callback`).
+
+    :param label: the run, for the resume and progress lines (``"pretrain cic walker seed 0"``)
+    """
     folder.start(checkpoint["step"] if checkpoint else 0)
     if checkpoint:
+        print(f"{label}: resumed from its checkpoint at step {checkpoint['step']:,} of {steps:,}", flush=True)
         folder.restore(model, callbacks)  # last: the random states as the checkpoint saved them
     checkpointer = RunCheckpointCallback(folder, checkpoint_every, callbacks, checkpoint["elapsed_s"] if checkpoint else 0.0)
-    model.learn(
-        steps - model.num_timesteps,
-        callback=[*callbacks, checkpointer],
-        tb_log_name=tb_log_name,
-        reset_num_timesteps=not checkpoint,
-        progress_bar=settings.progress_bar,
-    )
+    progress = progress_callback(label, steps, settings.progress_bar)
+    try:
+        model.learn(
+            steps - model.num_timesteps,
+            callback=[*callbacks, checkpointer, *([progress] if progress is not None else [])],
+            tb_log_name=tb_log_name,
+            reset_num_timesteps=not checkpoint,
+        )
+    finally:
+        close_progress(progress)
     return checkpointer.elapsed()
 
 
@@ -588,7 +598,7 @@ def finetune(
     expert = EXPERT_SCORES.get(name)
     evaluation = evaluation_callback(env_id, name if expert else None, seed, settings.eval_episodes, settings.eval_freq)
     wall = _train(model, folder, checkpoint, steps, [*callbacks, evaluation], settings.finetune_checkpoint_every, settings,
-                  f"finetune_{label}_{name}_seed{seed}")
+                  f"finetune_{label}_{name}_seed{seed}", f"{label} {name} seed {seed}")
     if not evaluation.history or evaluation.history[-1][0] != model.num_timesteps:
         start = time.perf_counter()
         evaluation._evaluate()  # the final evaluation

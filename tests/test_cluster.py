@@ -17,7 +17,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
-from typing import Callable, Iterator
+from typing import Iterator
 
 import pytest
 import ray
@@ -26,6 +26,7 @@ from ray.cluster_utils import Cluster
 
 from sb3_cic.protocol import run_protocol, settings_from_args
 from sb3_cic.study.cli import build_parser
+from waiting import wait_for
 
 LOCALHOST = "127.0.0.1"
 SEEDS = (0, 1)
@@ -121,15 +122,6 @@ def node_of(cluster: Cluster, pid: int) -> ray._private.node.Node:
     return nodes[0]
 
 
-def wait_for(condition: Callable[[], bool], timeout: float, driver: subprocess.Popen, log: Path) -> None:
-    """Wait until ``condition()`` holds; fail with the driver's output if it ends or ``timeout`` passes first."""
-    deadline = time.monotonic() + timeout
-    while not condition():
-        if driver.poll() is not None or time.monotonic() > deadline:
-            pytest.fail(f"the study ended or timed out first:\n{log.read_text()}")
-        time.sleep(0.05)
-
-
 def read_progress(folder: Path) -> dict:
     """A run folder's ``progress.json`` (empty when there is none)."""
     try:
@@ -139,6 +131,7 @@ def read_progress(folder: Path) -> dict:
 
 
 @pytest.mark.slow  # about 2.5 minutes on two busy cores
+@pytest.mark.timeout(0)  # no wall-clock limit: each wait below is bounded by the CPU its processes use (tests/waiting.py)
 def test_node_removed_after_first_checkpoint_the_run_resumes_on_another_node(cluster, tmp_path: Path):
     """Remove the node of the first run to checkpoint: Ray retries the run on the other node, where it resumes from
     the checkpoint; the study ends with both runs done once and the evaluations of an uninterrupted study."""
@@ -161,7 +154,7 @@ def test_node_removed_after_first_checkpoint_the_run_resumes_on_another_node(clu
             # and the other run has started (on a loaded machine it may start after the first checkpoint)
             return bool(checkpointed) and all(read_progress(f).get("pid") for f in folders.values())
 
-        wait_for(a_run_checkpointed, 300, driver, log)
+        wait_for(a_run_checkpointed, "a run's first checkpoint, with the other run started", driver, log.read_text)
         seed, progress = next(iter(checkpointed.items()))
         (rest,) = set(SEEDS) - {seed}
         removed = node_of(cluster, progress["pid"])
@@ -170,14 +163,16 @@ def test_node_removed_after_first_checkpoint_the_run_resumes_on_another_node(clu
         processes.see()
         worker = processes.seen[progress["pid"]]
         cluster.remove_node(removed)
-        wait_for(lambda: not running(worker), 30, driver, log)  # the run's worker stops with its node: it trains no further
+        # the run's worker stops with its node: it trains no further
+        wait_for(lambda: not running(worker), "the removed node's worker to stop", driver, log.read_text)
         # the retry: another process, on the other node (free once its own run is done), from the checkpoint
-        wait_for(lambda: read_progress(folders[seed]).get("pid", progress["pid"]) != progress["pid"], 300, driver, log)
+        wait_for(lambda: read_progress(folders[seed]).get("pid", progress["pid"]) != progress["pid"],
+                 "Ray's retry of the run on the other node", driver, log.read_text)
         retry = read_progress(folders[seed])
         assert node_of(cluster, retry["pid"]) is other and retry["checkpoint_step"] == progress["checkpoint_step"]
         processes.see()
         assert retry["pid"] in processes.seen  # checked stopped at the end
-        driver.wait(timeout=300)
+        wait_for(lambda: driver.poll() is not None, "the study to end", output=log.read_text)
     finally:
         if driver.poll() is None:
             driver.kill()

@@ -24,6 +24,10 @@ MAX_SKILL_DIM = 1024
 #: the largest seed (numpy's ``SeedSequence`` and Gymnasium take seeds in [0, 2**32 - 1])
 MAX_SEED = 2**32 - 1
 
+#: the most environment steps a run takes: 500 times URLB's 2M pre-training (at a few thousand steps a second, days of
+#: training); a larger count is a typo (``--pretrain-steps 100000000000000`` would run for centuries)
+MAX_STEPS = 10**9
+
 
 def _number(value: float) -> str:
     return str(int(value)) if float(value).is_integer() else repr(value)
@@ -96,6 +100,7 @@ POSITIVE = Range(0.0, low_open=True)
 NON_NEGATIVE = Range(0.0)
 FRACTION = Range(0.0, 1.0)
 SEED = Range(0, MAX_SEED, integer=True)
+STEPS = Range(1, MAX_STEPS, integer=True)
 
 #: the range of every numeric argument, by name: :class:`~sb3_cic.ddpg.URLBDDPG`'s (``learning_rate`` may also be a
 #: schedule, ``gradient_steps`` -1, ``train_freq`` a ``(frequency, unit)`` tuple, ``batch_size`` is at most
@@ -151,11 +156,11 @@ RANGES: dict[str, Range] = {
     "episode_length": POSITIVE_INT,
     "value": Range(-math.inf),  # Fixed's constant reward: any finite number
     # the protocol's settings
-    "pretrain_steps": POSITIVE_INT,
-    "finetune_steps": POSITIVE_INT,
+    "pretrain_steps": STEPS,
+    "finetune_steps": STEPS,
     "eval_freq": POSITIVE_INT,
     "eval_episodes": POSITIVE_INT,
-    "snapshots": POSITIVE_INT,
+    "snapshots": STEPS,
     "num_threads": POSITIVE_INT,
     "pretrain_checkpoint_every": NON_NEGATIVE_INT,
     "finetune_checkpoint_every": NON_NEGATIVE_INT,
@@ -163,14 +168,14 @@ RANGES: dict[str, Range] = {
     "checkpoint_every": NON_NEGATIVE_INT,
     "pretrain_seed": SEED,
     "seeds": SEED,
-    "snapshot": POSITIVE_INT,
-    "from_snapshot": POSITIVE_INT,
+    "snapshot": STEPS,
+    "from_snapshot": STEPS,
     "workers": POSITIVE_INT,
     "cpus_per_run": POSITIVE,
     "gpus_per_run": NON_NEGATIVE,
     "max_retries": NON_NEGATIVE_INT,
     "reps": POSITIVE_INT,
-    "n_timesteps": POSITIVE_INT,
+    "n_timesteps": STEPS,
     "n_eval_envs": POSITIVE_INT,
     "n_envs": POSITIVE_INT,
     "exp_id": Range(-1, integer=True),
@@ -317,6 +322,23 @@ def device_type(text: str) -> str:
     except RuntimeError:
         raise argparse.ArgumentTypeError(f"{text!r} is not a torch device (auto, cpu, cuda, cuda:1...)") from None
     return text
+
+
+def check_device_available(device: str) -> None:
+    """``ValueError`` when ``device`` asks for CUDA (``cuda``, ``cuda:1``) and torch sees no CUDA device here: SB3 would
+    train on the CPU without a word. ``auto`` and ``cpu`` are not checked (torch is not imported for them).
+
+    :param device: a value of ``--device`` (:func:`device_type`)
+    """
+    if not device.startswith("cuda"):
+        return
+    import torch as th
+
+    index = th.device(device).index
+    if not th.cuda.is_available():
+        raise ValueError(f"--device {device}: torch sees no CUDA device on this machine; use --device cpu (or auto)")
+    if index is not None and index >= th.cuda.device_count():
+        raise ValueError(f"--device {device}: this machine has {th.cuda.device_count()} CUDA device(s)")
 
 
 class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):

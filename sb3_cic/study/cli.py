@@ -8,7 +8,7 @@ import signal
 import sys
 from typing import Any, Iterator, Sequence
 
-from sb3_cic.common.arguments import argument_parser, option_type
+from sb3_cic.common.arguments import argument_parser, check_device_available, option_type
 from sb3_cic.parsers import add_pairing_arguments, add_settings_arguments
 
 #: the exit codes of a command ended by a signal (the shell's: 128 + the signal's number)
@@ -80,6 +80,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     writes afterwards) and end the command with one line that says how to resume, and the exit code 130 or 143.
     """
     args = build_parser().parse_args(argv)
+    if args.address is None:  # on a cluster, the nodes that run the runs may have the GPUs the driver lacks
+        check_device_available(args.device)
     from sb3_cic.protocol import settings_from_args
     from sb3_cic.study.engine import run_study
     from sb3_cic.study.graph import status_report

@@ -253,6 +253,7 @@ def run_study(
             RunFolder(run.folder(study)).clean()
         if not todo:
             return runs, []
+        announce_resumed(study, todo)
         started, since = not ray.is_initialized(), time.time()
         if started:
             start_ray(address, workers, cpus_per_run, gpus_per_run, log_to_driver=settings.verbose > 0)
@@ -266,6 +267,19 @@ def run_study(
         finally:
             if started and ray.is_initialized():
                 ray.shutdown()
+
+
+def announce_resumed(study: str | Path, runs: Sequence[Run]) -> None:
+    """Print one line for each of ``runs`` that will resume from a checkpoint (its ``progress.json`` records one),
+    with the step.
+
+    :param study: study folder
+    :param runs: the runs about to run
+    """
+    for run in runs:
+        step = (RunFolder(run.folder(study)).read_progress() or {}).get("checkpoint_step")
+        if step:
+            print(f"{run}: resumes from its checkpoint at step {step:,}", flush=True)
 
 
 def check_runs_settings(study: str | Path, runs: Sequence[Run], settings: Settings, pairing: Pairing) -> None:
