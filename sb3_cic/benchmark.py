@@ -31,7 +31,7 @@ import numpy as np
 
 from sb3_cic.common.arguments import argument_parser, option_type
 from sb3_cic.constants import EXPERT_SCORES, PUBLISHED_AGGREGATES, PUBLISHED_RETURNS
-from sb3_cic.evaluation import METRICS, _fmt, aggregate_scores, load_results, plot_aggregates, score_matrices
+from sb3_cic.evaluation import METRICS, _fmt, aggregate_scores, plot_aggregates, score_matrices
 
 #: URLB's domains, each with its four tasks in the paper's order
 DOMAIN_TASKS: dict[str, tuple[str, ...]] = {
@@ -48,16 +48,27 @@ AGREEMENT_LEVEL = 0.05
 ALL_TASKS: tuple[str, ...] = tuple(task for tasks in DOMAIN_TASKS.values() for task in tasks)
 
 
-def gather_results(studies: Sequence[str | Path], seeds: Sequence[int] | None = None) -> list[dict[str, Any]]:
+def gather_results(
+    studies: Sequence[str | Path], seeds: Sequence[int] | None = None, read: dict[str, list[str]] | None = None
+) -> list[dict[str, Any]]:
     """The fine-tuning results of several study folders: final snapshots only (no ``label@step``), ``seeds`` only.
+    Each study's results are those it counts (:func:`sb3_cic.study.results.study_results`: the runs of its record,
+    each checked; a run folder that disagrees is a one-line warning and not counted).
 
     :param studies: study folders
     :param seeds: fine-tuning seeds to keep (None: all)
+    :param read: filled with ``{study: lines}``, how many runs of which kind each study counted
+        (:meth:`~sb3_cic.study.results.StudyResults.describe`)
     :raises ValueError: a folder without results, or one (label, task, seed) in two folders
     """
+    from sb3_cic.study.results import study_results
+
     results, origin = [], {}
     for study in studies:
-        found = load_results(study)
+        counted = study_results(study)
+        found = counted.results
+        if read is not None:
+            read[str(study)] = counted.describe()
         if not found:
             raise ValueError(f"no fine-tuning results under {Path(study) / 'finetune'}")
         for result in found:
@@ -256,7 +267,8 @@ def write_benchmark_report(
     :param seed: seed of the bootstrap and the permutations
     :return: the ``report.json`` content
     """
-    results = gather_results(studies, seeds)
+    read: dict[str, list[str]] = {}
+    results = gather_results(studies, seeds, read)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     ours = task_means(results)
@@ -279,6 +291,10 @@ def write_benchmark_report(
         "",
         f"Studies: {', '.join(f'`{_short(s)}`' for s in studies)}; fine-tuning seeds {', '.join(map(str, kept))}. "
         "Final return = the last evaluation's mean return; normalised score = return / expert score.",
+        "",
+        "## Runs read (before the seeds were chosen)",
+        "",
+        *[f"- `{_short(study)}`: {line}" for study, described in read.items() for line in described],
         "",
         "## Per task, beside Table 6",
         "",
@@ -337,6 +353,7 @@ def write_benchmark_report(
     report = {
         "studies": [str(s) for s in studies],
         "seeds": kept,
+        "runs_read": read,
         "returns": {label: dict(tasks) for label, tasks in ours.items()},
         "aggregates": aggregates,
         "domains": domains,

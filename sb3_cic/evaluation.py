@@ -69,16 +69,25 @@ def read_eval_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     return steps, returns
 
 
-def read_run_result(folder: str | Path, finetune: bool = True) -> dict[str, Any]:
+def read_run_result(folder: str | Path, finetune: bool = True, expected: dict[str, Any] | None = None) -> dict[str, Any]:
     """The ``result.json`` of a done run, checked; a fine-tuning's with its ``eval.csv`` as ``curve``
     (``(timesteps, returns)`` arrays), whose last evaluation must be its ``final_return``.
 
+    Nothing derived is trusted: a fine-tuning's ``final_normalized_score`` (and ``expert_score``) must be what its
+    ``final_return`` and the task's expert score (:data:`~sb3_cic.constants.EXPERT_SCORES`) give, and each field of
+    ``expected`` (what the run's place in its study and the study's settings say: method, label, task, seed,
+    pretrain_seed, steps...; :func:`sb3_cic.study.results.expected_fields`) must be the run's. A field the run does
+    not record (a run made before it was recorded) is not checked; a field it records must agree.
+
     A damaged file (unreadable, a field missing or of another type, a ``final_return`` that its ``eval.csv`` does
-    not have) is a one-line ``ValueError`` that names it and says what to do.
+    not have, a field that disagrees) is a one-line ``ValueError`` that names it and says what to do.
 
     :param folder: the run folder
     :param finetune: a fine-tuning (False: a pre-training)
+    :param expected: ``{field: value}`` the run's ``result.json`` must hold where it records the field (None: none)
     """
+    from sb3_cic.constants import EXPERT_SCORES
+
     path = Path(folder) / "result.json"
     try:
         result = json.loads(path.read_text())
@@ -90,6 +99,10 @@ def read_run_result(folder: str | Path, finetune: bool = True) -> dict[str, Any]
     wrong = [key for key, kind in fields.items() if not isinstance(result.get(key, ...), kind)]
     if wrong:
         raise _damaged(path, f"missing or wrong fields {wrong}")
+    for key, value in (expected or {}).items():
+        if key in result and result[key] != value:
+            raise ValueError(f"{path} says {key} {result[key]!r} but its place in the study says {value!r}: it is not "
+                             f"this study's run (copied or edited); delete the run folder {path.parent} to run the run again")
     if not finetune:
         return result
     steps, returns = curve = read_eval_csv(Path(folder) / "eval.csv")
@@ -97,35 +110,25 @@ def read_run_result(folder: str | Path, finetune: bool = True) -> dict[str, Any]
         raise ValueError(f"{path} says final_return {result['final_return']} but the last evaluation of its eval.csv "
                          f"(step {steps[-1]}) is {returns[-1]}: one of the two was changed; delete the run folder "
                          f"{path.parent} to run the run again")
+    expert = EXPERT_SCORES.get(result["task"])
+    score = None if expert is None else result["final_return"] / expert
+    recorded = result["final_normalized_score"]
+    if (score is None) != (recorded is None) or (score is not None and not math.isclose(recorded, score, rel_tol=1e-9, abs_tol=1e-12)) \
+            or result.get("expert_score", expert) != expert:
+        raise ValueError(f"{path} says final_normalized_score {recorded} (expert score {result.get('expert_score')}) but "
+                         f"its final_return {result['final_return']} and the expert score {expert} of {result['task']} give "
+                         f"{score}: one of them was changed; delete the run folder {path.parent} to run the run again")
     return {**result, "curve": curve}
 
 
-def _legacy_pretrain_seed(study: Path, method: str, domain: str) -> int | None:
-    """The pre-training seed of a fine-tuning whose ``result.json`` predates ``pretrain_seed``: its study's one
-    (shared) pre-training seed, from ``study.json`` or the pre-training's ``result.json`` (None if neither says)."""
-    for path, key in ((study / "study.json", "pretrain_seed"), (study / "pretrain" / f"{method}_{domain}" / "result.json", "seed")):
-        try:
-            value = json.loads(path.read_text()).get(key)
-        except (OSError, ValueError, AttributeError):
-            continue
-        if isinstance(value, int):
-            return value
-    return None
-
-
 def load_results(study: str | Path) -> list[dict[str, Any]]:
-    """All fine-tuning ``result.json`` of a study, checked (:func:`read_run_result`), with their ``eval.csv`` as
-    ``curve`` (timestep, return) arrays, and each one's ``pretrain_seed`` (None: from scratch; a result written
-    before it was recorded: its study's shared pre-training seed)."""
-    study = Path(study)
-    results = []
-    for path in sorted(study.glob("finetune/*/*/seed_*/result.json")):
-        result = read_run_result(path.parent)
-        if "pretrain_seed" not in result:
-            scratch = result.get("from_scratch", False)
-            result["pretrain_seed"] = None if scratch else _legacy_pretrain_seed(study, result["method"], result["domain"])
-        results.append(result)
-    return results
+    """The fine-tuning results a study counts (:func:`sb3_cic.study.results.study_results`: the runs its record
+    lists, or whose own settings prove they are the study's; each checked against its place), with their
+    ``eval.csv`` as ``curve`` (timestep, return) arrays and each one's ``pretrain_seed`` (None: from scratch).
+    A run folder that disagrees is a one-line warning and not counted."""
+    from sb3_cic.study.results import study_results
+
+    return study_results(study).results
 
 
 def pairings(results: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
@@ -455,9 +458,13 @@ def write_report(study: str | Path, reps: int = 2000, seed: int = 0) -> dict[str
     study = Path(study)
     if not study.is_dir():
         raise FileNotFoundError(f"no such study folder: {study}")
-    results = load_results(study)
+    from sb3_cic.study.results import study_results
+
+    read = study_results(study)
+    results = read.results
     if not results:
-        raise FileNotFoundError(f"no fine-tuning results under {study / 'finetune'}")
+        raise FileNotFoundError(f"no fine-tuning results of the study {study} (under {study / 'finetune'})"
+                                + (f"; {len(read.refused)} refused" if read.refused else ""))
     rows = per_task(results)
     groups = []
     for tasks, labels in comparisons(results):
@@ -468,6 +475,10 @@ def write_report(study: str | Path, reps: int = 2000, seed: int = 0) -> dict[str
     lines += [
         "Final return = mean return of the last evaluation (deterministic episodes) of each run; "
         "normalised score = return / expert score. Mean ± standard error over seeds.",
+        "",
+        "## Runs read",
+        "",
+        *[f"- {line}" for line in read.describe()],
         "",
         "## Per task",
         "",
@@ -553,6 +564,7 @@ def write_report(study: str | Path, reps: int = 2000, seed: int = 0) -> dict[str
     report = {
         "study": study.name,
         "reps": reps,
+        "runs_read": {"kinds": dict(read.kinds), "refused": read.refused, "unrecorded": dict(read.unrecorded)},
         "pairing": pairing,
         "per_task": rows,
         "comparisons": [

@@ -47,6 +47,7 @@ from sb3_cic.study.record import (
     Pairing,
     StudyLock,
     changed_entries,
+    check_resume_settings,
     check_run_settings,
     rebuild_study_record,
     resolve_pairing,
@@ -167,6 +168,10 @@ class FinetuneResult:
     resumed_from_step: int = 0
     #: the seed of the pre-training it started from (None: from scratch)
     pretrain_seed: int | None = None
+    #: the sha256 of the snapshot it started from (None: from scratch)
+    snapshot_sha256: str | None = None
+    #: the settings of the process that can change its numbers (:func:`run_settings`)
+    run_settings: dict[str, Any] = field(default_factory=dict)
     wall_time_s: dict[str, float | None] = field(default_factory=dict)
     hyperparams: dict[str, str] = field(default_factory=dict)
 
@@ -285,7 +290,41 @@ def run_record(
         "settings": settings.study_settings(pretrained=not from_scratch),
         "conf_file": conf_file_record(row[0], config),
         "pairing": None if from_scratch or pairing is None else pairing.record(),
+        "run_settings": run_settings(settings),
     }
+
+
+def run_settings(settings: Settings) -> dict[str, Any]:
+    """The settings of the process that runs a run which can change its numbers though no study setting changes:
+    torch's threads (the order of float sums), ``compile_update`` (float rounding), TF32 and the device. Recorded in
+    each run folder (``settings.json``, ``result.json``); a run resumes only with the same
+    (:func:`~sb3_cic.study.record.check_resume_settings`).
+
+    :param settings: the command's settings (``num_threads`` None: torch's threads in this process)
+    """
+    from stable_baselines3.common.utils import get_device
+
+    return {"num_threads": int(settings.num_threads or th.get_num_threads()), "compile_update": bool(settings.compile_update),
+            "tf32": bool(settings.tf32), "device": get_device(settings.device).type}
+
+
+def run_identity(record: dict[str, Any]) -> dict[str, Any]:
+    """What a run's checkpoint records of the run it belongs to (:class:`~sb3_cic.study.checkpoint.RunFolder`): its
+    row (method, domain, task, seed, snapshot) and the sha256 of its study settings and pairing.
+
+    :param record: :func:`run_record`
+    """
+    digest = hashlib.sha256(json.dumps({"settings": record["settings"], "pairing": record["pairing"]}, sort_keys=True).encode())
+    return {"run": list(record["run"]), "settings_sha256": digest.hexdigest()}
+
+
+def file_sha256(path: str | Path) -> str:
+    """The sha256 of a file's content (a snapshot's: what ties a fine-tuning to the pre-training it loaded)."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as file:
+        for block in iter(lambda: file.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
 
 
 def snapshot_steps(settings: Settings, steps: int) -> list[int]:
@@ -433,14 +472,17 @@ def pretrain(
     """
     settings = settings or Settings()
     cls = zoo.get_algo(method)
-    folder = RunFolder(pretrain_dir(study, method, domain, seed if paired else None))
     pairing = Pairing("paired") if paired else Pairing("shared", seed)
-    check_run_settings(folder.path, run_record([method, domain, None, seed, None], settings, False, pairing, config))
+    record = run_record([method, domain, None, seed, None], settings, False, pairing, config)
+    folder = RunFolder(pretrain_dir(study, method, domain, seed if paired else None), identity=run_identity(record))
+    check_run_settings(folder.path, record)
     if folder.done:
         folder.clean()  # what a run killed just after writing result.json left
         return json.loads(folder.result.read_text())
-    checkpoint = folder.read_meta()  # a ValueError for a corrupt or missing checkpoint, before any work
-    write_run_settings(folder.path, run_record([method, domain, None, seed, None], settings, False, pairing, config))
+    checkpoint = folder.read_meta()  # a ValueError for a corrupt or missing checkpoint (or another run's), before any work
+    if checkpoint:
+        check_resume_settings(folder.path, record)
+    write_run_settings(folder.path, record, overwrite=not checkpoint)
     _set_threads(settings)
     env_id = f"URLB/{domain}-v0"
     hyperparams, _, n_timesteps, _ = zoo.zoo_hyperparams(method, env_id, config, settings.overrides(finetune=False))
@@ -462,7 +504,9 @@ def pretrain(
         "seed": seed,
         "steps": steps,
         "snapshots": snapshots.saved,
+        "snapshot_sha256": {str(step): file_sha256(folder.path / name) for step, name in snapshots.saved.items()},
         "resumed_from_step": checkpoint["step"] if checkpoint else 0,
+        "run_settings": record["run_settings"],
         "wall_time_s": {"pretrain": wall},
         "hyperparams": _describe(hyperparams),
     }
@@ -560,18 +604,19 @@ def finetune(
             raise ValueError(f"no snapshot at {snapshot} steps; saved: {sorted(int(k) for k in pre['snapshots'])}")
         label = run_label(method, None if snapshot == int(pre["steps"]) else snapshot)
         pairing = Pairing("paired") if paired else Pairing("shared", int(pre["seed"]))
-    folder = RunFolder(finetune_dir(study, label, name, seed))
     record = run_record([method, domain, name, seed, None if label == method else snapshot], settings, from_scratch,
                         pairing, config)
+    folder = RunFolder(finetune_dir(study, label, name, seed), identity=run_identity(record))
     check_run_settings(folder.path, record)
     if folder.done:
         folder.clean()  # what a run killed just after writing result.json left
         return json.loads(folder.result.read_text())
     snapshot_path = snapshot_file(pre_dir, snapshot)
-    if not from_scratch:
-        check_snapshot(snapshot_path)
-    checkpoint = folder.read_meta()  # a ValueError for a corrupt or missing checkpoint, before any work
-    write_run_settings(folder.path, record)
+    snapshot_sha256 = None if from_scratch else check_pretraining(pre_dir, pre, snapshot, seed if paired else None)
+    checkpoint = folder.read_meta()  # a ValueError for a corrupt or missing checkpoint (or another run's), before any work
+    if checkpoint:
+        check_resume_settings(folder.path, record)
+    write_run_settings(folder.path, record, overwrite=not checkpoint)
     _set_threads(settings)
 
     overrides = settings.overrides(finetune=not from_scratch)
@@ -631,11 +676,37 @@ def finetune(
         skill_sweep=None if sweep is None else [[float(np.mean(z)), float(ret)] for z, ret in sweep],
         resumed_from_step=checkpoint["step"] if checkpoint else 0,
         pretrain_seed=None if pre is None else int(pre["seed"]),
+        snapshot_sha256=snapshot_sha256,
+        run_settings=record["run_settings"],
         wall_time_s={"finetune": wall, "pretrain": None if pre is None else pre["wall_time_s"]["pretrain"]},
         hyperparams=_describe({**hyperparams, "policy_kwargs": model.policy_kwargs}),
     )
     folder.finish(asdict(result))
     return asdict(result)
+
+
+def check_pretraining(folder: Path, pre: dict[str, Any], step: int, seed: int | None) -> str:
+    """The sha256 of the snapshot at ``step`` of the pre-training in ``folder`` (its ``result.json``: ``pre``), which
+    a fine-tuning is about to load; a one-line ``ValueError`` when the snapshot is unreadable, when its content is
+    not the one the pre-training recorded (a snapshot copied over it), or when the pre-training is not of ``seed``.
+
+    :param folder: the pre-training folder
+    :param pre: its ``result.json``
+    :param step: the snapshot's step
+    :param seed: the pre-training seed the fine-tuning must start from (None: the study's shared one, not checked)
+    """
+    path = snapshot_file(folder, step)
+    check_snapshot(path)
+    if seed is not None and int(pre["seed"]) != seed:
+        raise ValueError(f"{folder / 'result.json'} is the pre-training of seed {pre['seed']}, not of seed {seed}: it was "
+                         f"copied; delete {folder} to pre-train seed {seed} again")
+    digest = file_sha256(path)
+    recorded = (pre.get("snapshot_sha256") or {}).get(str(step))
+    if recorded is not None and recorded != digest:
+        raise ValueError(f"the snapshot {path} is not the one its pre-training saved (sha256 {digest[:12]}..., "
+                         f"{folder / 'result.json'} records {recorded[:12]}...): it was replaced; restore it, or delete "
+                         f"{folder} to pre-train again")
+    return digest
 
 
 def run_protocol(

@@ -6,10 +6,14 @@ A run folder holds, besides what the run produces (``result.json``, ``eval.csv``
   written to ``checkpoint.tmp`` and renamed (a kill during a write leaves the previous checkpoint);
   deleted once ``result.json`` is written (a run killed in between is done: :meth:`RunFolder.clean` deletes
   what it left when the run is next seen);
-* ``progress.json`` while the run is unfinished: who runs it (host, pid) and its last checkpoint step;
+* ``progress.json`` while the run is unfinished: who runs it (host, pid and the process's start time, so that a pid
+  the system gave to another process since is not taken for it: :func:`process_start_time`) and its last
+  checkpoint step;
 * ``error.txt`` when the run raised: the traceback.
 
-The checkpoint is a zip (stored, not compressed) of ``meta.json`` (step, elapsed time), ``model.zip``
+The checkpoint is a zip (stored, not compressed) of ``meta.json`` (step, elapsed time, and the run it belongs to:
+its row and the hash of its settings, :attr:`RunFolder.identity`; a checkpoint of another run is refused),
+``model.zip``
 (SB3's ``save``: networks, optimisers, reward module, counters, last observation, action noise),
 ``replay_buffer.pkl`` (SB3's ``save_replay_buffer``) and ``state.pkl``: what SB3 does not save, namely the
 random states (Python, numpy, torch, the model's spaces), the environments' states (each env's episode
@@ -43,6 +47,17 @@ from sb3_cic.common.resumable import ResumableCallback, env_layers, env_state, h
 CHECKPOINT_FORMAT = 1
 
 
+def process_start_time(pid: int) -> int | None:
+    """The start time of process ``pid`` of this host (field 22 of ``/proc/<pid>/stat``, in clock ticks since boot):
+    with the pid, it names one process (a pid is reused, a (pid, start time) pair is not). None where it cannot be
+    read (no such process, no ``/proc``)."""
+    try:
+        with open(f"/proc/{pid}/stat") as file:
+            return int(file.read().rsplit(")", 1)[1].split()[19])
+    except (OSError, IndexError, ValueError):
+        return None
+
+
 def write_json(path: Path, data: dict[str, Any]) -> None:
     """Write ``data`` to ``path`` atomically (temporary file + rename).
 
@@ -58,10 +73,13 @@ class RunFolder:
     """The bookkeeping files of one run's folder (see the module docstring).
 
     :param path: the run folder
+    :param identity: the run the folder's checkpoint must belong to (``{"run": row, "settings_sha256": ...}``,
+        recorded in its ``meta.json``; each entry the checkpoint records must agree): None, not checked
     """
 
-    def __init__(self, path: str | Path) -> None:
+    def __init__(self, path: str | Path, identity: dict[str, Any] | None = None) -> None:
         self.path = Path(path)
+        self.identity = identity
         self.result = self.path / "result.json"
         self.checkpoint = self.path / "checkpoint.zip"
         self.checkpoint_tmp = self.path / "checkpoint.tmp"
@@ -97,11 +115,23 @@ class RunFolder:
                 missing = {"model.zip", "replay_buffer.pkl", "state.pkl"} - set(archive.namelist())
         except (OSError, ValueError, KeyError, zipfile.BadZipFile) as error:
             raise ValueError(
-                f"corrupt checkpoint {self.checkpoint} ({error!r}); delete it to run this run again from step 0"
+                f"corrupt checkpoint {self.checkpoint} ({error!r}); {self._restart_advice()}"
             ) from error
         if missing or meta.get("format") != CHECKPOINT_FORMAT or not isinstance(meta.get("step"), int):
-            raise ValueError(f"corrupt checkpoint {self.checkpoint} (missing {sorted(missing)} or bad meta.json {meta})")
+            raise ValueError(f"corrupt checkpoint {self.checkpoint} (missing {sorted(missing)} or bad meta.json {meta}); "
+                             f"{self._restart_advice()}")
+        recorded = meta.get("run") if isinstance(meta.get("run"), dict) else {}
+        other = {key: (recorded[key], value) for key, value in (self.identity or {}).items()
+                 if key in recorded and recorded[key] != value}
+        if other:
+            raise ValueError(f"the checkpoint {self.checkpoint} belongs to another run ((checkpoint, this run): {other}): "
+                             f"it was copied; {self._restart_advice()}")
         return meta
+
+    def _restart_advice(self) -> str:
+        """What to delete to run the run again from step 0 (all of it: one round of advice)."""
+        names = " and ".join(str(p) for p in (self.checkpoint, self.progress) if p.exists()) or str(self.checkpoint)
+        return f"delete {names} to run this run again from step 0"
 
     def start(self, checkpoint_step: int = 0) -> None:
         """Mark the run as running here (``progress.json``) and forget an earlier failure.
@@ -115,7 +145,8 @@ class RunFolder:
     def _write_progress(self, checkpoint_step: int) -> None:
         write_json(
             self.progress,
-            {"host": socket.gethostname(), "pid": os.getpid(), "checkpoint_step": checkpoint_step, "updated": time.time()},
+            {"host": socket.gethostname(), "pid": os.getpid(), "start_time": process_start_time(os.getpid()),
+             "checkpoint_step": checkpoint_step, "updated": time.time()},
         )
 
     def finish(self, result: dict[str, Any]) -> None:
@@ -156,6 +187,8 @@ class RunFolder:
         :param meta: extra entries of ``meta.json``
         """
         meta = {**meta, "format": CHECKPOINT_FORMAT, "step": int(model.num_timesteps)}
+        if self.identity is not None:
+            meta["run"] = self.identity
         state = {
             "rng": rng_state(model),
             "env": vec_env_state(model.get_env()),

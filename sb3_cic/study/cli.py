@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import os
 import signal
 import sys
 from typing import Any, Iterator, Sequence
@@ -116,5 +117,8 @@ def status_main(argv: Sequence[str] | None = None) -> int:
     from sb3_cic.study.graph import status_report
 
     report, finished = status_report(args.study)
-    print(report)
+    try:
+        print(report, flush=True)
+    except BrokenPipeError:  # ``sb3-cic status X | head``: the reader had enough; no traceback at exit either
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
     return 0 if finished else 1

@@ -28,9 +28,9 @@ from tqdm.auto import tqdm
 from sb3_cic import protocol
 from sb3_cic.common.arguments import check_argument
 from sb3_cic.protocol import Settings, check_study_settings, record_study_settings, run_record
-from sb3_cic.study.checkpoint import RunFolder
+from sb3_cic.study.checkpoint import RunFolder, process_start_time
 from sb3_cic.study.graph import Run, alive, build_graph, check_study, record_runs, settings_use
-from sb3_cic.study.record import Pairing, StudyLock, check_run_settings, resolve_pairing
+from sb3_cic.study.record import Pairing, StudyLock, check_resume_settings, check_run_settings, resolve_pairing
 
 
 def execute(study: str, run: Run, settings: Settings, dependency: dict[str, Any] | None = None) -> dict[str, Any]:
@@ -130,8 +130,11 @@ def run_graph(
 
 def stop_runs(study: str | Path, runs: Sequence[Run], since: float, grace_s: float = 10.0) -> None:
     """Make sure that no process of this host still runs one of ``runs`` for a command started at ``since``: each
-    run folder's ``progress.json`` names the process that runs it (its pid, updated at each checkpoint); one still
-    alive after ``grace_s`` seconds (Ray stops its workers when it shuts down) is killed, by its pid.
+    run folder's ``progress.json`` names the process that runs it (its pid and start time, updated at each
+    checkpoint); one still alive after ``grace_s`` seconds (Ray stops its workers when it shuts down) is killed, by
+    its pid, and only when it is proven to be that process: its start time is the one recorded
+    (:func:`~sb3_cic.study.checkpoint.process_start_time`). A pid the system gave to another process since (the
+    worker died) is left alone, as is one whose start time was not recorded.
 
     :param study: study folder
     :param runs: the runs the command started
@@ -139,16 +142,18 @@ def stop_runs(study: str | Path, runs: Sequence[Run], since: float, grace_s: flo
     :param grace_s: seconds given to the processes to end
     """
     here = socket.gethostname()
-    pids = set()
+    processes = set()
     for run in runs:
         progress = RunFolder(run.folder(study)).read_progress() or {}
         if progress.get("host") == here and progress.get("updated", 0) >= since and progress.get("pid") != os.getpid():
-            pids.add(int(progress["pid"]))
+            start = progress.get("start_time")
+            if isinstance(start, int) and isinstance(progress.get("pid"), int):
+                processes.add((progress["pid"], start))
     deadline = time.monotonic() + grace_s
-    while any(alive(pid) for pid in pids) and time.monotonic() < deadline:
+    while any(alive(pid, start) for pid, start in processes) and time.monotonic() < deadline:
         time.sleep(0.1)
-    for pid in pids:
-        if alive(pid):
+    for pid, start in processes:
+        if alive(pid, start) and process_start_time(pid) == start:  # proven: the process the run folder names
             os.kill(pid, signal.SIGKILL)
 
 
@@ -246,6 +251,7 @@ def run_study(
     check_study_settings(study, settings, chosen, **settings_use(runs))
     check_runs_settings(study, runs, settings, chosen)
     todo = check_study(study, runs)
+    check_resumes(study, todo, settings, chosen, cpus_per_run)
     with StudyLock(study):
         record_study_settings(study, settings, chosen, **settings_use(runs))
         record_runs(study, runs)
@@ -293,3 +299,21 @@ def check_runs_settings(study: str | Path, runs: Sequence[Run], settings: Settin
     """
     for run in runs:
         check_run_settings(run.folder(study), run_record(run.row(), settings, run.from_scratch, pairing))
+
+
+def check_resumes(study: str | Path, runs: Sequence[Run], settings: Settings, pairing: Pairing, cpus_per_run: float) -> None:
+    """``ValueError`` (one line) if a run of ``runs`` that will resume from its checkpoint was started with other run
+    settings (threads, compile, TF32, device) than its Ray task will have
+    (:func:`~sb3_cic.study.record.check_resume_settings`; ``num_threads`` None: ``cpus_per_run``, as :func:`run_graph`).
+
+    :param study: study folder
+    :param runs: the runs still to do
+    :param settings: the command's settings
+    :param pairing: the command's pairing
+    :param cpus_per_run: CPUs of a run's task
+    """
+    if settings.num_threads is None:
+        settings = dataclasses.replace(settings, num_threads=max(1, int(cpus_per_run)))
+    for run in runs:
+        if RunFolder(run.folder(study)).checkpoint.exists():
+            check_resume_settings(run.folder(study), run_record(run.row(), settings, run.from_scratch, pairing))

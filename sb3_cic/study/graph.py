@@ -16,7 +16,7 @@ from sb3_cic.envs.tasks import DOMAIN_TASKS
 from sb3_cic import zoo
 from sb3_cic.constants import EXPERT_SCORES
 from sb3_cic.evaluation import read_run_result
-from sb3_cic.study.checkpoint import RunFolder, write_json
+from sb3_cic.study.checkpoint import RunFolder, process_start_time, write_json
 from sb3_cic.study.record import Pairing, study_record
 from sb3_cic.study.layout import (
     check_snapshot,
@@ -202,13 +202,16 @@ def check_study(study: str | Path, runs: Sequence[Run]) -> list[Run]:
     :param study: study folder
     :param runs: the command's runs (:func:`build_graph`)
     """
+    from sb3_cic.study.results import read_done_run
+
+    record = study_record(study) if Path(study).is_dir() else None
     todo = []
     for run in runs:
-        folder = RunFolder(run.folder(study))
+        folder = RunFolder(run.folder(study), identity={"run": run.row()})
         if folder.done:
-            read_run_result(folder.path, finetune=run.task is not None)
+            read_done_run(study, run, record)
             continue
-        folder.read_meta()  # a ValueError for a corrupt or missing checkpoint
+        folder.read_meta()  # a ValueError for a corrupt or missing checkpoint, or one of another run
         todo.append(run)
     for run in runs:  # the snapshots the fine-tunings still to do start from
         if run.task is None and run not in todo:
@@ -247,14 +250,18 @@ def study_runs(study: str | Path) -> tuple[list[Run], Pairing | None]:
     return [Run.of_row(row, pairing) for row in data.get("runs", [])], pairing
 
 
-def alive(pid: int) -> bool:
-    """Whether the process ``pid`` of this host runs (a zombie, ended but not yet reaped, does not)."""
+def alive(pid: int, start_time: int | None = None) -> bool:
+    """Whether the process ``pid`` of this host runs (a zombie, ended but not yet reaped, does not) and, given its
+    ``start_time`` (:func:`~sb3_cic.study.checkpoint.process_start_time`), is the same process: a pid that the
+    system gave to another process since is not."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
         return False
     except PermissionError:
-        return True
+        pass
+    if start_time is not None and process_start_time(pid) not in (None, start_time):
+        return False
     try:
         with open(f"/proc/{pid}/stat") as file:
             return file.read().rsplit(")", 1)[1].split()[0] != "Z"
@@ -262,18 +269,24 @@ def alive(pid: int) -> bool:
         return True
 
 
-def run_state(folder: RunFolder, kind: str = "finetune") -> tuple[str, dict[str, Any]]:
+def run_state(folder: RunFolder, kind: str = "finetune", check: Any = None) -> tuple[str, dict[str, Any]]:
     """The state of a run (one of :data:`STATES`) and what its folder says: ``checkpoint_step``, ``error``...
 
     :param folder: the run's folder
     :param kind: ``finetune`` or ``pretrain`` (what its ``result.json`` must hold)
+    :param check: reads a done run's result, checked (a ``ValueError`` if it disagrees; None:
+        :func:`~sb3_cic.evaluation.read_run_result` alone)
 
-    ``running``: its ``progress.json`` names a live process (on this host) or another host; a run whose process
-    is gone is ``pending`` (it resumes from its checkpoint when started again).
+    ``running``: its ``progress.json`` names a live process (on this host, the same process: its start time is the
+    one recorded, :func:`alive`) or another host; a run whose process is gone is ``pending`` (it resumes from its
+    checkpoint when started again).
     """
     if folder.done:
         try:
-            read_run_result(folder.path, finetune=kind == "finetune")
+            if check is not None:
+                check()
+            else:
+                read_run_result(folder.path, finetune=kind == "finetune")
         except ValueError as error:
             return "damaged", {"checkpoint_step": "none", "error": str(error)}
         return "done", {}
@@ -288,7 +301,7 @@ def run_state(folder: RunFolder, kind: str = "finetune") -> tuple[str, dict[str,
         return "failed", {**info, "error": lines[-1] if lines else "", "traceback": str(folder.error)}
     if progress:
         here = progress.get("host") == socket.gethostname()
-        if not here or alive(int(progress.get("pid", -1))):
+        if not here or alive(int(progress.get("pid", -1)), progress.get("start_time")):
             return "running", {**info, "host": progress.get("host"), "pid": progress.get("pid")}
     return "pending", info
 
@@ -298,12 +311,15 @@ def status_report(study: str | Path) -> tuple[str, bool]:
 
     :param study: study folder
     """
+    from sb3_cic.study.results import read_done_run, study_results
+
     runs, pairing = study_runs(study)
+    record = study_record(study)
     counts: dict[tuple[str, str], Counter] = {}
     unfinished, failed, damaged = [], [], []
     for run in runs:
-        folder = RunFolder(run.folder(study))
-        state, info = run_state(folder, run.kind)
+        folder = RunFolder(run.folder(study), identity={"run": run.row()})
+        state, info = run_state(folder, run.kind, lambda run=run: read_done_run(study, run, record))
         counts.setdefault((run.method, run.domain), Counter())[state] += 1
         if state not in ("done", "damaged"):
             where = f" on {info['host']} (pid {info['pid']})" if state == "running" else ""
@@ -315,6 +331,8 @@ def status_report(study: str | Path) -> tuple[str, bool]:
     total = Counter()
     for counter in counts.values():
         total.update(counter)
+    if not runs:
+        return f"{study}: no runs recorded yet (its study.json lists none): start them with sb3-cic study or protocol", False
     counted = f"{len(runs)} run{'' if len(runs) == 1 else 's'}"
     lines = [f"{study}: {counted}, " + ", ".join(f"{total[s]} {s}" for s in STATES)]
     lines += [f"pre-training: {pairing.describe() if pairing else 'none yet (runs from scratch only)'}", ""]
@@ -328,4 +346,8 @@ def status_report(study: str | Path) -> tuple[str, bool]:
         lines += ["", "Failed runs:", *failed]
     if damaged:
         lines += ["", "Damaged runs (not counted as done):", *damaged]
+    listed = {run.folder(study) for run in runs}
+    strays = [line for line in study_results(study, warn=False).refused if not any(f"{f}/" in line for f in listed)]
+    if strays:
+        lines += ["", "Run folders the study does not count (not of its record):", *(f"  {line}" for line in strays)]
     return "\n".join(lines), total["done"] == len(runs)

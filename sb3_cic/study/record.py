@@ -14,6 +14,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import json
 import os
@@ -216,14 +217,34 @@ def check_run_settings(folder: str | Path, record: dict[str, Any]) -> None:
                          "Use the run's settings or another folder")
 
 
-def write_run_settings(folder: str | Path, record: dict[str, Any]) -> None:
+def check_resume_settings(folder: str | Path, record: dict[str, Any]) -> None:
+    """``ValueError`` (one line) if a run about to resume from its checkpoint was started with other run settings
+    (threads, ``compile_update``, TF32, device: :func:`sb3_cic.protocol.run_settings`) than the command's: the two
+    halves of one run would be made differently. A run folder that records none is not checked.
+
+    :param folder: the run folder
+    :param record: what :func:`sb3_cic.protocol.run_record` returns for the command's run
+    """
+    recorded = (run_settings_of(folder) or {}).get("run_settings")
+    if not recorded:
+        return
+    diff = {key: (recorded.get(key), value) for key, value in record["run_settings"].items()
+            if key in recorded and recorded[key] != value}
+    if diff:
+        raise ValueError(f"the run {folder} was started with other run settings, which change its numbers; (run, "
+                         f"command): {diff}. Resume it with the run's (--num-threads, --compile, --tf32, --device), or "
+                         f"delete its checkpoint.zip and progress.json to run it again from step 0")
+
+
+def write_run_settings(folder: str | Path, record: dict[str, Any], overwrite: bool = False) -> None:
     """Record in the run folder the settings it is made with (once: a resumed run keeps its record).
 
     :param folder: the run folder
     :param record: :func:`sb3_cic.protocol.run_record`
+    :param overwrite: write it anew (a run that starts from step 0: its record is that of the process that runs it)
     """
     path = Path(folder) / RUN_SETTINGS
-    if not path.exists():
+    if overwrite or not path.exists():
         path.parent.mkdir(parents=True, exist_ok=True)
         write_json(path, record)
 
@@ -275,7 +296,8 @@ class StudyLock:
     """One driver per study folder: an exclusive ``flock`` on ``<study>/study.lock``, held while the command runs.
 
     The kernel releases the lock when its process ends, however it ends (a killed driver leaves no stuck lock).
-    The file says who holds it (host, pid, start), for the message of the command it refuses.
+    The file says who holds it (host, pid, start), for the message of the command it refuses. A folder the lock
+    made and in which nothing else was written (the command was stopped at once) is removed when it is released.
 
     :param study: study folder
     """
@@ -283,8 +305,10 @@ class StudyLock:
     def __init__(self, study: str | Path) -> None:
         self.path = lock_file(study)
         self._file: IO[str] | None = None
+        self._created = False
 
     def __enter__(self) -> StudyLock:
+        self._created = not self.path.parent.exists()
         self.path.parent.mkdir(parents=True, exist_ok=True)
         file = open(self.path, "a+")
         try:
@@ -303,7 +327,13 @@ class StudyLock:
         return self
 
     def __exit__(self, *exc: Any) -> None:
-        if self._file is not None:
-            fcntl.flock(self._file, fcntl.LOCK_UN)
-            self._file.close()
-            self._file = None
+        if self._file is None:
+            return
+        if self._created and [p.name for p in self.path.parent.iterdir()] == [self.path.name]:
+            # a command stopped before it wrote anything (Ctrl-C at once) leaves no folder behind that is no study
+            with contextlib.suppress(OSError):
+                self.path.unlink(missing_ok=True)
+                self.path.parent.rmdir()
+        fcntl.flock(self._file, fcntl.LOCK_UN)
+        self._file.close()
+        self._file = None
