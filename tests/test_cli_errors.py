@@ -9,7 +9,6 @@ from __future__ import annotations
 import argparse
 import os
 import re
-import subprocess
 import sys
 from pathlib import Path
 
@@ -17,6 +16,7 @@ import pytest
 
 from sb3_cic import protocol
 from sb3_cic.cli import main
+from waiting import run_process
 
 ROOT = Path(__file__).resolve().parent.parent
 #: the shipped walker snapshot (hidden 256, 100k steps)
@@ -112,8 +112,8 @@ def test_other_errors_still_raise(workdir: Path, monkeypatch: pytest.MonkeyPatch
 def test_entry_point_prints_one_line(tmp_path: Path):
     """The installed command's behaviour (a fresh process): no traceback, exit code 2."""
     env = {**os.environ, "MUJOCO_GL": "disable", "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
-    process = subprocess.run([sys.executable, "-m", "sb3_cic.cli", "protocol", "--method", "cicc", "--study", "s"],
-                             cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
+    process = run_process([sys.executable, "-m", "sb3_cic.cli", "protocol", "--method", "cicc", "--study", "s"],
+                          "sb3-cic protocol --method cicc", cwd=tmp_path, env=env)
     assert process.returncode == 2
     assert process.stderr.strip().splitlines() == [
         "sb3-cic protocol: error: unknown algorithm 'cicc'; known: "

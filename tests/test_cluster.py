@@ -195,4 +195,4 @@ def test_node_removed_after_first_checkpoint_the_run_resumes_on_another_node(clu
 
     processes.see()
     cluster.shutdown()
-    assert processes.wait_stopped() == []
+    wait_for(lambda: not processes.alive(), "every process of the cluster to stop", output=lambda: str(processes.alive()))

@@ -6,13 +6,13 @@ from __future__ import annotations
 import argparse
 import os
 import resource
-import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 
 from sb3_cic.cli import main
+from waiting import run_process
 
 ROOT = Path(__file__).resolve().parent.parent
 COMMANDS = [
@@ -39,8 +39,8 @@ def _help(arguments: list[str], cwd: Path, module: str = "sb3_cic.cli") -> tuple
     (CPU time, not wall time: the measure holds on a machine busy with other work)."""
     env = {**os.environ, "MUJOCO_GL": "disable", "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    process = subprocess.run([sys.executable, "-c", SCRIPT.format(module=module, arguments=arguments, heavy=HEAVY)], cwd=cwd, env=env,
-                             capture_output=True, text=True, timeout=120)
+    process = run_process([sys.executable, "-c", SCRIPT.format(module=module, arguments=arguments, heavy=HEAVY)],
+                          f"{module} {arguments}", cwd=cwd, env=env)
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     assert process.returncode == 0, process.stderr
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)

@@ -1,7 +1,6 @@
 """``sb3-cic skills``: the grid video of a snapshot's skills and the plot of where they go."""
 
 import os
-import subprocess
 import sys
 
 import imageio.v2 as imageio
@@ -10,15 +9,16 @@ import pytest
 
 from sb3_cic import CIC, ICM
 from sb3_cic.skill_video import grid_frames, show_skills
+from waiting import run_process
 
 RENDER_PROBE = (
-    "import gymnasium as gym, envs; e = gym.make('URLB/point_mass-v0', render_mode='rgb_array'); e.reset(); e.render()"
+    "import gymnasium as gym, sb3_cic.envs; e = gym.make('URLB/point_mass-v0', render_mode='rgb_array'); e.reset(); e.render()"
 )
 
 
 def egl_or_skip() -> dict:
     env = {**os.environ, "MUJOCO_GL": "egl"}
-    probe = subprocess.run([sys.executable, "-c", RENDER_PROBE], env=env, capture_output=True, text=True, timeout=120)
+    probe = run_process([sys.executable, "-c", RENDER_PROBE], "the EGL rendering probe", env=env)
     if probe.returncode != 0:
         pytest.skip(f"no EGL rendering here: {probe.stderr.strip().splitlines()[-1] if probe.stderr else 'failed'}")
     return env
@@ -40,7 +40,7 @@ def test_skills_command_writes_a_grid_video(snapshot, tmp_path, suffix):
     out, plot = tmp_path / f"skills{suffix}", tmp_path / "where.png"
     command = [sys.executable, "-m", "sb3_cic.cli", "skills", str(snapshot), "--n", "5", "--steps", "12", "--size", "48",
                "--out", str(out), "--plot", str(plot)]
-    done = subprocess.run(command, env=env, capture_output=True, text=True, timeout=600)
+    done = run_process(command, "sb3-cic skills", env=env)
     assert done.returncode == 0, done.stderr
     frames = imageio.mimread(out)
     assert len(frames) == 13  # the start and 12 steps
@@ -73,10 +73,10 @@ def test_plot_only_needs_no_opengl(snapshot, tmp_path):
     plot = tmp_path / "where.png"
     command = [sys.executable, "-m", "sb3_cic.cli", "skills", str(snapshot), "--n", "2", "--steps", "5", "--no-video",
                "--plot", str(plot)]
-    done = subprocess.run(command, env={**os.environ, "MUJOCO_GL": "disable"}, capture_output=True, text=True, timeout=600)
+    done = run_process(command, "sb3-cic skills --no-video", env={**os.environ, "MUJOCO_GL": "disable"})
     assert done.returncode == 0, done.stderr
     assert plot.stat().st_size > 0 and f"wrote {plot}" in done.stdout
-    refused = subprocess.run(command[:-2], env={**os.environ, "MUJOCO_GL": "disable"}, capture_output=True, text=True)
+    refused = run_process(command[:-2], "sb3-cic skills --no-video without --plot", env={**os.environ, "MUJOCO_GL": "disable"})
     assert refused.returncode != 0 and "give --plot PNG" in refused.stderr
 
 

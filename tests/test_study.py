@@ -27,6 +27,7 @@ from sb3_cic.protocol import Settings, check_study_settings, run_protocol
 from sb3_cic.study.checkpoint import RunFolder
 from sb3_cic.study.engine import run_study
 from sb3_cic.study.graph import build_graph, settings_use, status_report
+from waiting import wait_for
 
 
 SETTINGS = Settings(
@@ -109,10 +110,8 @@ def _kill_after_checkpoint(command: list[str], env: dict[str, str], checkpoint: 
     """Start ``command`` and SIGKILL it once ``checkpoint`` exists."""
     process = subprocess.Popen(command, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     try:
-        deadline = time.monotonic() + 120
-        while not checkpoint.exists() and process.poll() is None and time.monotonic() < deadline:
-            time.sleep(0.05)
-        assert checkpoint.exists(), process.stderr.read().decode() if process.poll() is not None else "no checkpoint"
+        wait_for(checkpoint.exists, f"the checkpoint {checkpoint}", process,
+                 lambda: process.stderr.read().decode() if process.poll() is not None else "")
         process.send_signal(signal.SIGKILL)
     finally:
         process.kill()
@@ -166,10 +165,10 @@ def test_ray_worker_killed_mid_study_is_retried(ray_instance, tmp_path: Path):
     study = tmp_path / "study"
     folder = study / "finetune" / "ddpg" / "walker_stand" / "seed_0"
     killed, seen = [], []
+    study_ended = threading.Event()
 
-    def kill_worker_after_first_checkpoint() -> None:
-        deadline = time.monotonic() + 120
-        while time.monotonic() < deadline and not (folder / "result.json").exists():
+    def kill_worker_after_first_checkpoint() -> None:  # until the run is done or the study has ended: no clock
+        while not study_ended.is_set() and not (folder / "result.json").exists():
             progress = folder / "progress.json"
             if (folder / "checkpoint.zip").exists() and progress.exists():
                 pid = json.loads(progress.read_text())["pid"]
@@ -184,6 +183,7 @@ def test_ray_worker_killed_mid_study_is_retried(ray_instance, tmp_path: Path):
     try:
         _, statuses = run_study(study, ["ddpg"], ["walker"], ["stand"], [0], settings, max_retries=2, progress_bar=False)
     finally:
+        study_ended.set()
         watcher.join()
     assert killed and statuses == [{"run": "ddpg walker_stand seed 0", "state": "done", "error": None}]
     assert "1 run, 0 done, 1 running" in seen[0] and "ddpg walker_stand seed 0: running on" in seen[0]

@@ -13,7 +13,6 @@ import shutil
 import signal
 import subprocess
 import sys
-import time
 from dataclasses import replace
 from pathlib import Path
 
@@ -25,6 +24,7 @@ from sb3_cic.protocol import Settings, conf_file_record, run_protocol
 from sb3_cic.study.engine import execute
 from sb3_cic.study.graph import Run, alive, build_graph, status_report
 from sb3_cic.study.record import Pairing, StudyLock, changed_entries
+from waiting import wait_for
 
 ROOT = Path(__file__).resolve().parents[1]
 QUADRUPED = ROOT / "docs" / "results" / "quadruped_reduced" / "runs"
@@ -240,14 +240,13 @@ def test_sigint_and_sigterm_stop_the_study_and_its_runs(tmp_path: Path, signum: 
     progress = study / "finetune" / "ddpg" / "walker_stand" / "seed_0" / "progress.json"
     driver = subprocess.Popen(command, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        deadline = time.monotonic() + 300  # a safety limit, not a timing assertion
-        while not progress.exists() and driver.poll() is None and time.monotonic() < deadline:
-            time.sleep(0.1)
-        assert progress.exists(), driver.communicate()[1] if driver.poll() is not None else "the run did not start"
+        wait_for(progress.exists, "the run to start", driver,
+                 lambda: driver.communicate()[1] if driver.poll() is not None else "")
         worker = json.loads(progress.read_text())["pid"]
         assert worker != driver.pid and alive(worker)
         driver.send_signal(signum)
-        _, err = driver.communicate(timeout=120)
+        wait_for(lambda: driver.poll() is not None, f"the study to end after {signal.Signals(signum).name}")
+        _, err = driver.communicate()
     finally:
         if driver.poll() is None:
             driver.kill()

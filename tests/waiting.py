@@ -83,3 +83,27 @@ def wait_for(
         if why is not None:
             pytest.fail(f"waited for {what}: {why}" + (f"\n{output()}" if output is not None else ""))
         time.sleep(poll_s)
+
+
+def run_process(args: list[str], what: str, cpu_budget_s: float = 900.0, **kwargs) -> subprocess.CompletedProcess:
+    """``subprocess.run(args, capture_output=True, text=True, **kwargs)`` whose wait is :func:`wait_for`'s (bounded
+    by the CPU the process uses, not by the clock); the process is killed if the wait fails.
+
+    :param args: the command
+    :param what: the command in words, for a failure (``"sb3-cic --help"``)
+    :param cpu_budget_s: CPU seconds it may use
+    :param kwargs: further ``subprocess.Popen`` arguments (``env``, ``cwd``)
+    """
+    import tempfile
+
+    with tempfile.TemporaryFile("w+") as out, tempfile.TemporaryFile("w+") as err:
+        process = subprocess.Popen(args, stdout=out, stderr=err, text=True, **kwargs)
+        try:
+            wait_for(lambda: process.poll() is not None, f"{what} to end", cpu_budget_s=cpu_budget_s)
+        finally:
+            if process.poll() is None:
+                process.kill()
+                process.wait()
+        out.seek(0)
+        err.seek(0)
+        return subprocess.CompletedProcess(args, process.returncode, out.read(), err.read())
