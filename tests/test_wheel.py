@@ -23,6 +23,8 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
+#: building, installing and three commands on a loaded machine: a bound well above the ~3 min they take idle
+pytestmark = pytest.mark.timeout(1800)
 
 
 @pytest.fixture(scope="module")
@@ -101,7 +103,8 @@ def test_a_users_own_envs_folder_does_not_shadow_the_environments(installed: Pat
     (tmp_path / "envs" / "__init__.py").write_text("WHOSE = 'the user'\n")
     (tmp_path / "train.py").write_text(
         "import envs\nimport gymnasium as gym\nimport sb3_cic\n"
-        "model = sb3_cic.CIC('MlpPolicy', gym.make('URLB/walker-v0'), policy_kwargs={'hidden_dim': 16}, batch_size=8, learning_starts=20)\n"
+        "model = sb3_cic.CIC('MlpPolicy', gym.make('URLB/walker-v0'), policy_kwargs={'hidden_dim': 16},\n"
+        "                    batch_size=8, learning_starts=20)\n"
         "model.learn(40)\nprint(envs.WHOSE, type(model).__name__, model.num_timesteps)\n"
     )
     result = _run([str(installed / "python"), "train.py"], tmp_path)
@@ -110,13 +113,14 @@ def test_a_users_own_envs_folder_does_not_shadow_the_environments(installed: Pat
 
 def test_the_command_line_trains_fine_tunes_and_runs_the_protocol_from_an_empty_folder(installed: Path, tmp_path: Path):
     sb3_cic = str(installed / "sb3-cic")
-    _run([sb3_cic, "train", "--algo", "cic", "--env", "URLB/walker-v0", "--small", "-n", "200",
+    # jaco: 250-step episodes, so that the evaluation at the fine-tuning's step 0 (10 episodes) stays short
+    _run([sb3_cic, "train", "--algo", "cic", "--env", "URLB/jaco-v0", "--small", "-n", "200",
           "--hyperparams", "learning_starts:100"], tmp_path)
-    pretrained = tmp_path / "logs" / "cic" / "URLB-walker-v0_1" / "URLB-walker-v0.zip"
+    pretrained = tmp_path / "logs" / "cic" / "URLB-jaco-v0_1" / "URLB-jaco-v0.zip"
     assert pretrained.is_file(), sorted(str(p) for p in tmp_path.rglob("*"))
-    _run([sb3_cic, "finetune", "--algo", "cic", "--env", "URLB/walker-flip-v0", "-i", str(pretrained), "--small",
+    _run([sb3_cic, "finetune", "--algo", "cic", "--env", "URLB/jaco-reach_top_left-v0", "-i", str(pretrained), "--small",
           "-n", "200", "--hyperparams", "learning_starts:100"], tmp_path)
-    assert (tmp_path / "logs" / "cic" / "URLB-walker-flip-v0_1" / "URLB-walker-flip-v0.zip").is_file()
+    assert (tmp_path / "logs" / "cic" / "URLB-jaco-reach_top_left-v0_1" / "URLB-jaco-reach_top_left-v0.zip").is_file()
     study = tmp_path / "study"
     _run([sb3_cic, "protocol", "--study", str(study), "--method", "cic", "--domain", "jaco", "--tasks", "reach_top_left",
           "--seeds", "0", "--small", "--pretrain-steps", "300", "--finetune-steps", "300", "--learning-starts", "100",
