@@ -18,11 +18,14 @@ Options ``train`` and ``finetune`` add to rl-zoo's: ``--small`` (CPU-sized hyper
 the grid sweep of the yaml's :class:`~sb3_cic.callbacks.SkillGridSweepCallback` follows ``learning_starts``.
 
 A command that fails on bad input (an unknown method, a snapshot of another domain, a study folder made with
-other settings, an unknown option...) prints one line, ``sb3-cic <command>: error: <message>``, exits with
-code 2 and leaves nothing behind (see :data:`USER_ERRORS`, :func:`main`); other errors raise as they are.
+other settings, an unknown option, a folder that cannot be written...) prints one line, ``sb3-cic <command>: error:
+<message>``, exits with code 2 and leaves nothing behind (see :data:`USER_ERRORS`, :data:`FILESYSTEM_ERRORS`,
+:func:`main`); other errors raise as they are. Ctrl-C is one line that says how to go on (exit code 130), a warning
+one line.
 Every numeric option is checked for its type and range while the command line is read (the ranges of
 :data:`sb3_cic.common.arguments.RANGES`; rl-zoo's counts too, :data:`ZOO_OPTIONS`), and no option may be abbreviated,
-rl-zoo's included (``--smal`` is no ``--small``). ``--help`` shows each option's default and loads neither torch nor
+rl-zoo's included (``--smal`` is no ``--small``): an option neither sb3-cic nor rl-zoo knows is refused before
+torch loads (:data:`ZOO_SCRIPT_OPTIONS`). ``--help`` shows each option's default and loads neither torch nor
 Ray: the heavy modules are imported by the command handlers, after the arguments are read (``--zoo-help`` shows
 rl-zoo's own options of ``train``, ``finetune``, ``enjoy`` and ``record-video``).
 """
@@ -67,18 +70,18 @@ Run `sb3-cic <command> --help` for the options of a command (train, finetune, en
 #: the errors that mean bad input: reported in one line with exit code 2 (other exceptions raise as they are)
 USER_ERRORS: tuple[type[BaseException], ...] = (ValueError, FileNotFoundError, PermissionError, gym.error.Error)
 
-#: the ``OSError`` numbers of a file system that refuses a write (read-only, full, a file where a folder is needed...):
-#: bad input too, reported in one line with exit code 2 by :func:`main`
-FILESYSTEM_ERRORS: dict[int, str] = {
-    errno.EROFS: "read-only file system: choose a writable folder",
-    errno.EACCES: "permission denied: choose a folder you can write",
-    errno.EPERM: "operation not permitted: choose a folder you can write",
-    errno.EEXIST: "a file stands where a folder is needed: choose another path",
-    errno.ENOTDIR: "a file stands where a folder is needed: choose another path",
-    errno.EISDIR: "a folder stands where a file is needed: choose another path",
-    errno.ENOSPC: "no space left on the device",
-    errno.EDQUOT: "disk quota exceeded",
-    errno.ENAMETOOLONG: "file name too long",
+#: the ``OSError`` numbers of a file system that refuses a path (read-only, full, a file where a folder is needed...):
+#: bad input too, reported in one line with exit code 2 by :func:`main`, as ``cannot <verb> <path>: <advice>``
+FILESYSTEM_ERRORS: dict[int, tuple[str, str]] = {
+    errno.EROFS: ("write", "read-only file system: choose a writable folder"),
+    errno.EACCES: ("write", "permission denied: choose a folder you can write"),
+    errno.EPERM: ("write", "operation not permitted: choose a folder you can write"),
+    errno.ENOSPC: ("write", "no space left on the device"),
+    errno.EDQUOT: ("write", "disk quota exceeded"),
+    errno.EEXIST: ("use", "a file stands where a folder is needed: choose another path"),
+    errno.ENOTDIR: ("use", "a file stands where a folder is needed: choose another path"),
+    errno.EISDIR: ("use", "a folder stands where a file is needed: choose another path"),
+    errno.ENAMETOOLONG: ("use", "file name too long"),
 }
 
 #: what an interrupted command says on how to go on
@@ -635,8 +638,9 @@ def main(argv: Sequence[str] | None = None) -> None:
     except OSError as error:
         if error.errno not in FILESYSTEM_ERRORS:
             raise
+        verb, advice = FILESYSTEM_ERRORS[error.errno]
         where = f" {os.fsdecode(error.filename)}" if error.filename is not None else ""
-        _fail(prog, f"cannot write{where}: {FILESYSTEM_ERRORS[error.errno]} ({error.strerror})")
+        _fail(prog, f"cannot {verb}{where}: {advice} ({error.strerror})")
     except KeyboardInterrupt as interrupt:
         signum = getattr(interrupt, "signum", signal.SIGINT)
         advice = RESUME_ADVICE.get(command)

@@ -137,11 +137,11 @@ def test_a_file_where_a_folder_is_needed_is_one_line(workdir, capsys):
     (workdir / "afile").write_text("a file")
     line = _one_line(["study", "afile", "--methods", "ddpg", "--domains", "walker", "--tasks", "stand", "--seeds", "0",
                       *TINY, "--finetune-steps", "1000"], capsys, workdir)
-    assert line == "sb3-cic study: error: cannot write afile: a file stands where a folder is needed: choose another " \
+    assert line == "sb3-cic study: error: cannot use afile: a file stands where a folder is needed: choose another " \
                    "path (File exists)"
     line = _one_line(["train", "--algo", "ddpg", "--env", "URLB/walker-stand-v0", "--small", "-n", "200", "-f", "afile"],
                      capsys, workdir)
-    assert line.startswith("sb3-cic train: error: cannot write afile/ddpg: a file stands where a folder is needed")
+    assert line.startswith("sb3-cic train: error: cannot use afile/ddpg: a file stands where a folder is needed")
 
 
 def test_read_only_protocol_and_train_are_one_line(read_only: Path, workdir: Path, capsys):
