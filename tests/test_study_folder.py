@@ -13,6 +13,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import warnings
 from dataclasses import replace
 from pathlib import Path
 
@@ -169,11 +170,17 @@ def test_a_damaged_result_is_named_and_never_counted_as_done(quadruped: Path, ca
     damage(run)
     code, out, _ = _exit(["status", str(quadruped)], capsys)
     assert code == 1 and "72 done" in out and "1 damaged" in out and message in out and str(run) in out
-    for command in (["report", str(quadruped)],
-                    ["study", str(quadruped), "--methods", "cic", "--domains", "quadruped", "--tasks", "stand",
-                     "--seeds", "0", *QUADRUPED_FLAGS]):
-        line = _refused(command, capsys)
-        assert message in line and str(run) in line and "delete the run folder" in line
+    line = _refused(["study", str(quadruped), "--methods", "cic", "--domains", "quadruped", "--tasks", "stand",
+                     "--seeds", "0", *QUADRUPED_FLAGS], capsys)
+    assert message in line and str(run) in line and "delete the run folder" in line
+    with warnings.catch_warnings(record=True) as caught:  # the report: named in one line and not counted
+        warnings.simplefilter("always")
+        code, out, _ = _exit(["report", str(quadruped), "--reps", "20"], capsys)
+    (said,) = [str(w.message) for w in caught if str(run) in str(w.message)]
+    assert code == 0 and message in said and "delete the run folder" in said
+    assert f"refused (not counted): {said}" in out
+    report = json.loads((quadruped / "report.json").read_text())
+    assert report["runs_read"]["refused"] == [said] and sum(report["runs_read"]["kinds"].values()) == 134
 
 
 @pytest.mark.parametrize("content", ['{"settings": 5}', "[1, 2]", '{"runs": [["cic"]]}', "\x00garbage"])

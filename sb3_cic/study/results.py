@@ -196,7 +196,8 @@ def study_results(study: str | Path, warn: bool = True) -> StudyResults:
                     diff = _settings_agree(settings or {}, pairing, own)
                     if diff:
                         raise ValueError(f"{folder / 'settings.json'} records other settings than {study_file(study)} "
-                                         f"{diff}: a run of another study; delete it or report it in its own study")
+                                         f"{diff}: a run of another study, or one of the two files was changed; "
+                                         "delete the run folder or report it in its own study")
             if record is None:
                 kind = "no_record"
             elif folder in listed:
