@@ -1,15 +1,18 @@
 # make demo: the shipped CIC quadruped snapshot fine-tuned on quadruped jump beside DDPG from scratch; prints
 #            both scores, writes the learning curves and a skill video to demo_output/ (CPU)
 # make test: the test suite
+# make test-quick: a first check of a few minutes (the environments, every method's construction and update, the
+#                  command line's refusals, the package's structure)
 # make docs: the documentation site (Sphinx, warnings as errors) into docs/_build/html
 # Each creates the virtual environment .venv and installs the project into it on first use.
 VENV ?= .venv
+QUICK_TESTS := tests/test_structure.py tests/test_help.py tests/test_envs.py tests/test_methods.py tests/test_cli_errors.py
 PY := $(VENV)/bin/python
 # the tests need no rendering (the video tests set MUJOCO_GL=egl themselves); the demo renders its skill
 # video with the headless backend that sb3_cic finds when MUJOCO_GL is unset
 test: export MUJOCO_GL ?= disable
 
-.PHONY: demo test docs install clean
+.PHONY: demo test test-quick docs install clean
 
 install: $(VENV)/.installed
 
@@ -24,6 +27,10 @@ demo: install
 
 test: install
 	$(PY) -m pytest
+
+test-quick: export MUJOCO_GL ?= disable
+test-quick: install
+	$(PY) -m pytest -m "not slow" $(QUICK_TESTS)
 
 # the docs extra (Sphinx, MyST, the Read the Docs theme) into the same .venv, on first use
 $(VENV)/.docs-installed: $(VENV)/.installed
