@@ -23,8 +23,6 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-#: building, installing and three commands on a loaded machine: a bound well above the ~3 min they take idle
-pytestmark = pytest.mark.timeout(1800)
 
 
 @pytest.fixture(scope="module")
