@@ -388,7 +388,7 @@ def _check_learning_starts(settings: Settings, hyperparams: dict[str, Any], step
 
 def check_learning_starts(runs: Sequence[Any], settings: Settings) -> None:
     """``ValueError`` before anything is written when the ``learning_starts`` of ``settings`` leaves one of ``runs``
-    (:class:`~sb3_cic.study.graph.Run`, the study's) no update; nothing to check when it is the yaml's.
+    (:class:`~sb3_cic.study.run.Run`, the study's) no update; nothing to check when it is the yaml's.
 
     :param runs: the command's runs
     :param settings: the command's settings

@@ -12,7 +12,8 @@ The layers, from the bottom:
   ``sb3_cic.envs`` (the repository's ``envs/``);
 * the study layer: ``sb3_cic.study`` and ``sb3_cic.protocol``, the run code that the study and
   ``sb3-cic protocol`` share (``protocol`` belongs to the study layer: a run checkpoints itself with
-  ``sb3_cic.study.checkpoint`` and lays out its folder with ``sb3_cic.study.layout``);
+  ``sb3_cic.study.checkpoint`` and lays out its folder with ``sb3_cic.study.layout``), and the reports over a
+  study's runs, ``sb3_cic.evaluation`` and ``sb3_cic.benchmark``, which read the runs its record lists;
 * the entry points: ``sb3_cic.cli`` (every command) and ``sb3_cic.demo`` (``make demo``).
 
 A layer imports its own and the layers below, never those above.
@@ -27,7 +28,7 @@ ROOT = Path(__file__).resolve().parents[1]
 #: each package's dotted name and its folder in the repository (``envs/`` is installed as ``sb3_cic.envs``)
 PACKAGES = {"sb3_cic": "sb3_cic", "sb3_cic.envs": "envs"}
 #: the study layer (see the module docstring)
-STUDY = ("sb3_cic.study", "sb3_cic.protocol")
+STUDY = ("sb3_cic.study", "sb3_cic.protocol", "sb3_cic.evaluation", "sb3_cic.benchmark")
 #: the entry points, above everything
 ENTRY_POINTS = ("sb3_cic.cli", "sb3_cic.demo")
 

@@ -3,26 +3,22 @@ the study folder before anything runs, and the status of each run read back from
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import os
 import socket
 from collections import Counter
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
 
 from sb3_cic.envs.tasks import DOMAIN_TASKS
 from sb3_cic import zoo
 from sb3_cic.constants import EXPERT_SCORES
-from sb3_cic.evaluation import read_run_result
+from sb3_cic.study.run_result import read_run_result
 from sb3_cic.study.checkpoint import RunFolder, process_start_time, write_json
 from sb3_cic.study.record import Pairing, study_record
+from sb3_cic.study.run import Run
 from sb3_cic.study.layout import (
     check_snapshot,
-    finetune_dir,
-    pretrain_dir,
-    run_label,
     snapshot_file,
     study_file,
     task_env_id,
@@ -43,80 +39,6 @@ def all_methods() -> list[str]:
         if name not in zoo.BASELINES_BY_NAME_ONLY:
             names.setdefault(cls, name)
     return list(names.values())
-
-
-@dataclass(frozen=True)
-class Run:
-    """One run of a study: a pre-training (``task`` None) or a fine-tuning of ``method`` on ``domain``.
-
-    :param method: rl-zoo name of the method (``cic``...; ``ddpg`` fine-tunes from scratch)
-    :param domain: URLB domain
-    :param task: URLB task name (``walker_flip``), None for a pre-training
-    :param seed: the run's seed (a pre-training's: its pre-training seed)
-    :param snapshot: pre-training step of the snapshot a fine-tuning starts from (None: the final one)
-    :param pretrain_seed: the seed of the pre-training a fine-tuning starts from (None: a pre-training, or a run
-        from scratch)
-    :param shared: a run of a study with shared pre-training (:class:`~sb3_cic.study.record.Pairing`): its
-        pre-training folder has no seed in its name (:func:`~sb3_cic.study.layout.pretrain_dir`)
-
-    ``study.json`` lists the first five fields (:meth:`row`); the pairing is the study's.
-    """
-
-    method: str
-    domain: str
-    task: str | None
-    seed: int
-    snapshot: int | None = None
-    pretrain_seed: int | None = None
-    shared: bool = False
-
-    @classmethod
-    def of_row(cls, row: Sequence[Any], pairing: Pairing | None) -> Run:
-        """The run of a ``study.json`` row (4 or 5 fields) in a study with ``pairing`` (None: none pre-trained)."""
-        run = cls(*row)
-        shared = pairing is not None and not pairing.paired
-        if run.task is None:
-            return dataclasses.replace(run, shared=shared)
-        if run.from_scratch or pairing is None:
-            return run
-        return dataclasses.replace(run, pretrain_seed=pairing.pretrain_seed(run.seed), shared=shared)
-
-    def row(self) -> list[Any]:
-        """The run as ``study.json`` lists it: ``[method, domain, task or None, seed, snapshot or None]``."""
-        return [self.method, self.domain, self.task, self.seed, self.snapshot]
-
-    @property
-    def kind(self) -> str:
-        """``pretrain`` or ``finetune``."""
-        return "pretrain" if self.task is None else "finetune"
-
-    @property
-    def from_scratch(self) -> bool:
-        """A fine-tuning without pre-training (``ddpg``)."""
-        return not zoo.has_reward_module(zoo.get_algo(self.method))
-
-    def folder(self, study: str | Path) -> Path:
-        """The run's folder in ``study`` (:mod:`sb3_cic.study.layout`: ``cic@100000`` for a fine-tuning from the
-        snapshot at 100,000 steps)."""
-        if self.task is None:
-            return pretrain_dir(study, self.method, self.domain, None if self.shared else self.seed)
-        return finetune_dir(study, self.label, self.task, self.seed)
-
-    @property
-    def label(self) -> str:
-        """The method's name in the study's folders and reports (``cic``, ``cic@100000``)."""
-        return run_label(self.method, self.snapshot)
-
-    def dependency(self) -> Run | None:
-        """The pre-training a fine-tuning starts from (None for a pre-training or a run from scratch)."""
-        if self.task is None or self.pretrain_seed is None:
-            return None
-        return Run(self.method, self.domain, None, self.pretrain_seed, shared=self.shared)
-
-    def __str__(self) -> str:
-        if self.task is None:
-            return f"pretrain {self.method} {self.domain}" + ("" if self.shared else f" seed {self.seed}")
-        return f"{self.label} {self.task} seed {self.seed}"
 
 
 def build_graph(
@@ -194,7 +116,7 @@ def check_study(study: str | Path, runs: Sequence[Run]) -> list[Run]:
     """Check the study folder's runs against a command, before anything runs; return the runs still to do.
 
     ``ValueError`` (one line) when a finished run's ``result.json`` or ``eval.csv`` is damaged or disagree
-    (:func:`~sb3_cic.evaluation.read_run_result`), when an unfinished run has a corrupt checkpoint or has lost one,
+    (:func:`~sb3_cic.study.run_result.read_run_result`), when an unfinished run has a corrupt checkpoint or has lost one,
     or when a pre-training lacks a snapshot that a fine-tuning still to do needs (the settings: see
     :func:`~sb3_cic.protocol.check_study_settings` and :func:`~sb3_cic.study.record.check_run_settings`). Writes
     nothing.
@@ -275,7 +197,7 @@ def run_state(folder: RunFolder, kind: str = "finetune", check: Any = None) -> t
     :param folder: the run's folder
     :param kind: ``finetune`` or ``pretrain`` (what its ``result.json`` must hold)
     :param check: reads a done run's result, checked (a ``ValueError`` if it disagrees; None:
-        :func:`~sb3_cic.evaluation.read_run_result` alone)
+        :func:`~sb3_cic.study.run_result.read_run_result` alone)
 
     ``running``: its ``progress.json`` names a live process (on this host, the same process: its start time is the
     one recorded, :func:`alive`) or another host; a run whose process is gone is ``pending`` (it resumes from its

@@ -4,7 +4,7 @@ A result is what its folder proves. The reports (``sb3-cic report``, ``sb3-cic b
 ``sb3-cic status`` read the fine-tunings that ``study.json`` lists, and a run folder the record does not list only
 when the run's own ``settings.json`` proves that it was made with the study's settings (runs are copied between
 studies on purpose); never a folder because its name matches a pattern. Each run's ``result.json`` is checked
-(:func:`~sb3_cic.evaluation.read_run_result`) against what its place says (:func:`expected_fields`): method, label,
+(:func:`~sb3_cic.study.run_result.read_run_result`) against what its place says (:func:`expected_fields`): method, label,
 task, seed, the pre-training seed of the study's pairing, the study's steps, the hash of the snapshot its
 pre-training saved. A run that disagrees is named in one line (a warning) and not counted.
 
@@ -25,7 +25,7 @@ from typing import Any
 
 from sb3_cic import zoo
 from sb3_cic.envs.tasks import DOMAIN_TASKS
-from sb3_cic.evaluation import read_run_result
+from sb3_cic.study.run_result import read_run_result
 from sb3_cic.study.record import Pairing, read_study_record, rebuild_study_record, run_settings_of
 from sb3_cic.study.layout import study_file
 
@@ -81,7 +81,7 @@ def expected_fields(
     study: str | Path, folder: Path, settings: dict[str, Any] | None, pairing: Pairing | None
 ) -> dict[str, Any]:
     """What the ``result.json`` of the fine-tuning in ``folder`` must record, from its place in the study and the
-    study's settings (:func:`~sb3_cic.evaluation.read_run_result` checks each field the run records).
+    study's settings (:func:`~sb3_cic.study.run_result.read_run_result` checks each field the run records).
 
     :param study: study folder
     :param folder: the run folder (``finetune/<label>/<task>/seed_<k>``)
@@ -123,7 +123,7 @@ def _settings_agree(study_settings: dict[str, Any], study_pairing: Pairing | Non
 class StudyResults:
     """The fine-tuning results a study counts, how each came to be read, and the run folders refused.
 
-    :param results: the results (:func:`~sb3_cic.evaluation.read_run_result`, with ``curve`` and ``pretrain_seed``)
+    :param results: the results (:func:`~sb3_cic.study.run_result.read_run_result`, with ``curve`` and ``pretrain_seed``)
     :param kinds: ``{kind of :data:`KINDS`: runs}``
     :param refused: one line per run folder not counted (what disagrees, in which file)
     :param unrecorded: ``{field: runs that do not record it}`` (made before it was recorded)
@@ -158,7 +158,7 @@ def study_results(study: str | Path, warn: bool = True) -> StudyResults:
     :param study: study folder
     :param warn: each refused run folder is also a warning (one line that names the file)
     """
-    from sb3_cic.study.graph import Run
+    from sb3_cic.study.run import Run
     from sb3_cic.study.layout import run_folders
 
     study = Path(study)
@@ -233,7 +233,7 @@ def _legacy_pretrain_seed(study: Path, expected: dict[str, Any]) -> int | None:
 
 
 def read_done_run(study: str | Path, run: Any, record: dict[str, Any] | None) -> dict[str, Any]:
-    """The checked ``result.json`` of a done run of the study's record (:class:`~sb3_cic.study.graph.Run`): its
+    """The checked ``result.json`` of a done run of the study's record (:class:`~sb3_cic.study.run.Run`): its
     fields against its place and the study's settings (:func:`expected_fields`), its ``settings.json`` against its
     place; a one-line ``ValueError`` naming the file that disagrees.
 
