@@ -51,8 +51,10 @@ import gymnasium as gym
 from sb3_cic.common.arguments import argument_parser, check_device_available, device_type, option_type
 from sb3_cic.parsers import small_help
 
-USAGE = """usage: sb3-cic {train,finetune,enjoy,record-video,protocol,study,status,report,benchmark-report,skills} [options]
+USAGE = """usage: sb3-cic {demo,train,finetune,enjoy,record-video,protocol,study,status,report,benchmark-report,skills}
+              [options]
 
+  demo          the main job: a shipped CIC snapshot fine-tuned on a task beside DDPG from scratch (make demo)
   train         rl-zoo training (pre-training on URLB/<domain>-v0, or ddpg on a task id)
   finetune      rl-zoo training on a task id from a pre-trained model (-i model.zip)
   enjoy         rl-zoo's enjoy with the sb3-cic algorithms
@@ -547,7 +549,11 @@ def record_video(argv: Sequence[str]) -> None:
 
 def _run(command: str, argv: list[str]) -> int:
     """Run one command; return its exit code."""
-    if command == "train":
+    if command == "demo":
+        from sb3_cic.demo import main as demo_main
+
+        demo_main(argv)
+    elif command == "train":
         train(argv)
     elif command == "finetune":
         finetune(argv)

@@ -1,6 +1,6 @@
 """The main job at CPU size: a pre-trained CIC fine-tuned on a task beside DDPG from scratch.
 
-Run with ``python -m sb3_cic.demo`` (``make demo``). The package ships two CIC snapshots pre-trained
+Run with ``sb3-cic demo`` or ``python -m sb3_cic.demo`` (``make demo``). The package ships two CIC snapshots pre-trained
 reward-free (``sb3_cic/pretrained/``, hidden 256, batch 256): on ``URLB/quadruped-v0`` for 500k steps (the
 quadruped study's, ``docs/results/quadruped_reduced``) and on ``URLB/walker-v0`` for 100k steps. The demo
 fine-tunes the quadruped one on quadruped jump for 20k steps (the paper's skill grid sweep first) and trains
@@ -84,7 +84,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         ``(step, mean return, normalised score)`` list
     """
     parser = argument_parser(
-        "python -m sb3_cic.demo",
+        "sb3-cic demo",
         "The main job at CPU size: a pre-trained CIC (a shipped snapshot) fine-tuned on a task beside DDPG from "
         "scratch with the same networks, batch and budget, both evaluated as URLB does; prints both learning curves "
         "and writes the plot, a skill video and the models into --out.",

@@ -109,7 +109,7 @@ def test_a_users_own_envs_folder_does_not_shadow_the_environments(installed: Pat
     assert result.stdout.strip().splitlines()[-1] == "the user CIC 40"
 
 
-def test_the_command_line_trains_fine_tunes_and_runs_the_protocol_from_an_empty_folder(installed: Path, tmp_path: Path):
+def test_the_command_line_trains_fine_tunes_runs_the_demo_and_the_protocol_from_an_empty_folder(installed: Path, tmp_path: Path):
     sb3_cic = str(installed / "sb3-cic")
     # jaco: 250-step episodes, so that the evaluation at the fine-tuning's step 0 (10 episodes) stays short
     _run([sb3_cic, "train", "--algo", "cic", "--env", "URLB/jaco-v0", "--small", "-n", "200",
@@ -119,6 +119,9 @@ def test_the_command_line_trains_fine_tunes_and_runs_the_protocol_from_an_empty_
     _run([sb3_cic, "finetune", "--algo", "cic", "--env", "URLB/jaco-reach_top_left-v0", "-i", str(pretrained), "--small",
           "-n", "200", "--hyperparams", "learning_starts:100"], tmp_path)
     assert (tmp_path / "logs" / "cic" / "URLB-jaco-reach_top_left-v0_1" / "URLB-jaco-reach_top_left-v0.zip").is_file()
+    _run([sb3_cic, "demo", "--domain", "walker", "--steps", "400", "--learning-starts", "200", "--eval-every", "200",
+          "--eval-episodes", "1", "--skills", "0"], tmp_path)
+    assert (tmp_path / "demo_output").is_dir() and any((tmp_path / "demo_output").iterdir())
     study = tmp_path / "study"
     _run([sb3_cic, "protocol", "--study", str(study), "--method", "cic", "--domain", "jaco", "--tasks", "reach_top_left",
           "--seeds", "0", "--small", "--pretrain-steps", "300", "--finetune-steps", "300", "--learning-starts", "100",
