@@ -13,20 +13,19 @@ import socket
 import subprocess
 import sys
 import warnings
-import zipfile
 from dataclasses import replace
 from pathlib import Path
 
 import pytest
 import torch as th
 
-from sb3_cic.cli import main
 from sb3_cic.evaluation import load_results, write_report
 from sb3_cic.protocol import Settings, finetune, run_protocol
 from sb3_cic.study.checkpoint import RunFolder
 from sb3_cic.study.engine import stop_runs
 from sb3_cic.study.graph import Run, run_state, status_report
 from sb3_cic.study.record import StudyLock
+from test_study_folder import _exit  # a command's exit code, stdout and stderr, run in process
 
 TINY = Settings(hidden_dim=32, batch_size=32, learning_starts=500, buffer_size=10_000, pretrain_steps=600, finetune_steps=600,
                 eval_freq=10_000, eval_episodes=1, num_threads=1, pretrain_checkpoint_every=0, finetune_checkpoint_every=0)
@@ -263,17 +262,6 @@ def test_a_command_stopped_at_once_leaves_no_folder(tmp_path: Path):
         with pytest.raises(KeyboardInterrupt), StudyLock(folder):
             raise KeyboardInterrupt
     assert not new.exists() and old.exists()
-
-
-def _exit(arguments: list[str], capsys: pytest.CaptureFixture) -> tuple[int, str, str]:
-    capsys.readouterr()
-    try:
-        main(arguments)
-        code = 0
-    except SystemExit as exit_:
-        code = exit_.code
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 def test_report_refuses_a_damaged_or_edited_study_json(study: Path, capsys: pytest.CaptureFixture):
