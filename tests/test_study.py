@@ -25,7 +25,7 @@ import torch as th
 from sb3_cic.cli import main
 from sb3_cic.protocol import Settings, check_study_settings, run_protocol
 from sb3_cic.study.checkpoint import RunFolder
-from sb3_cic.study.engine import run_study
+from sb3_cic.study.engine import run_study, start_ray
 from sb3_cic.study.graph import build_graph, settings_use, status_report
 from waiting import wait_for
 
@@ -55,7 +55,7 @@ FLAGS = [
 @pytest.fixture(scope="module")
 def ray_instance():
     threads = th.get_num_threads()
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    start_ray(workers=2)
     yield
     ray.shutdown()
     th.set_num_threads(threads)
@@ -85,6 +85,17 @@ def study(ray_instance, tmp_path_factory: pytest.TempPathFactory) -> Path:
                                pairing="shared")
     assert len(runs) == 9 and [s["state"] for s in statuses] == ["done"] * 9
     return path
+
+
+def test_local_workers_run_at_the_drivers_niceness(ray_instance):
+    """Ray's default worker niceness (15) would leave a study's runs a few percent of a CPU on a busy machine."""
+
+    @ray.remote(num_cpus=1)
+    def niceness() -> int:
+        return os.nice(0)
+
+    assert "RAY_worker_niceness" not in os.environ  # set only while the local instance starts
+    assert ray.get(niceness.remote()) == os.nice(0)
 
 
 def test_study_on_ray_equals_sequential_protocol(study: Path, tmp_path: Path):
