@@ -4,7 +4,7 @@
 * ``finetune``: rl_zoo3's ``train`` on a task id from a pre-trained model (``-i model.zip``), where the
   algorithm loads with ``load_pretrained`` (see :class:`sb3_cic.zoo.PretrainedLoader`);
 * ``enjoy``, ``record-video``: rl_zoo3's scripts with our algorithms registered;
-* ``protocol``: the URLB protocol (:mod:`sb3_cic.protocol`);
+* ``protocol``: the URLB protocol for one method and domain, in this process (:mod:`sb3_cic.study.driver`);
 * ``study``, ``status``: the whole study on Ray and its state (:mod:`sb3_cic.study`);
 * ``report``: the score report of a study (:mod:`sb3_cic.evaluation`);
 * ``benchmark-report``: URLB's 12 tasks over several studies beside the CIC paper's Tables 5 and 6
@@ -566,8 +566,7 @@ def _run(command: str, argv: list[str]) -> int:
 
         args = build_parser().parse_args(argv)  # --help and refused options before the protocol's code (torch) loads
         check_device_available(args.device)
-        from sb3_cic.protocol import main as protocol_main
-        from sb3_cic.study.cli import interruptible
+        from sb3_cic.study.cli import interruptible, protocol_main
 
         with interruptible():  # SIGTERM too: :func:`main` says how to resume
             protocol_main(argv)

@@ -46,6 +46,28 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def conf_files_of(values: list[str] | None, methods: list[str]) -> dict[str, str]:
+    """The yaml of each method that ``sb3-cic study --conf-file`` gives: ``METHOD=FILE`` entries, or one ``FILE``
+    when ``--methods`` names one method; a ``ValueError`` for a bare file with several methods or a method twice.
+
+    :param values: the ``--conf-file`` values (None: none given)
+    :param methods: the ``--methods`` values
+    """
+    out: dict[str, str] = {}
+    for value in values or ():
+        method, _, path = value.partition("=")
+        if not path or "/" in method or "." in method:  # a file name, not METHOD=FILE
+            if len(methods) != 1 or methods == ["all"] or len(values or ()) != 1:
+                raise ValueError(f"--conf-file {value}: give METHOD=FILE for each method's yaml when --methods names "
+                                 "several (or all)")
+            method, path = methods[0], value
+        method = method.lower()
+        if method in out:
+            raise ValueError(f"--conf-file names {method} twice")
+        out[method] = path
+    return out
+
+
 def add_pairing_arguments(parser: argparse.ArgumentParser) -> None:
     """``--pairing`` and ``--pretrain-seed`` of ``protocol`` and ``study`` (:class:`~sb3_cic.study.record.Pairing`)."""
     parser.add_argument(
@@ -59,7 +81,7 @@ def add_pairing_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def add_settings_arguments(parser: argparse.ArgumentParser) -> None:
-    """The scale, evaluation and checkpoint options of ``protocol`` and ``study`` (see :class:`~sb3_cic.protocol.Settings`)."""
+    """The scale, evaluation and checkpoint options of ``protocol`` and ``study`` (see :class:`~sb3_cic.study.settings.Settings`)."""
     snapshots = " ".join(str(step) for step in DEFAULT_SNAPSHOTS)
     parser.add_argument("--snapshots", nargs="+", type=option_type("snapshots"), default=None, metavar="STEP",
                         help=f"pre-training steps at which a snapshot is saved, at most --pretrain-steps (the final "
@@ -96,7 +118,7 @@ def add_settings_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def settings_values(args: argparse.Namespace) -> dict[str, Any]:
-    """The values of :class:`~sb3_cic.protocol.Settings` that the options of :func:`add_settings_arguments` give
+    """The values of :class:`~sb3_cic.study.settings.Settings` that the options of :func:`add_settings_arguments` give
     (``--small`` filled in, ``--checkpoint-every`` split), checked together: a ``ValueError`` naming the options for
     a batch above the replay capacity, a snapshot above the pre-training steps or more than two checkpoint periods.
 

@@ -8,7 +8,7 @@ import pytest
 
 from sb3_cic import APS, APT, CIC, DIAYN, ICM, MOSS, RND, SMM, Disagreement, Fixed, ProtoRL, URLBDDPG, UniformSkillPrior
 from sb3_cic.common.arguments import DDPG_ARGUMENTS, FLAGS, MAX_SKILL_DIM, RANGES, Range, check_argument
-from sb3_cic.protocol import Settings
+from sb3_cic.study.settings import Settings
 
 ALL = [URLBDDPG, CIC, ICM, Disagreement, RND, APT, ProtoRL, DIAYN, SMM, APS, MOSS, Fixed]
 SKILLED = [CIC, DIAYN, SMM, APS, MOSS]

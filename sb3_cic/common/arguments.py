@@ -3,7 +3,7 @@ argparse error naming the option on the command line (one line, exit code 2), be
 or trained.
 
 :data:`RANGES` holds the range of each numeric argument by name, shared by the classes (:class:`~sb3_cic.ddpg.URLBDDPG`
-and the methods' reward-module arguments), the protocol's :class:`~sb3_cic.protocol.Settings` and the command lines
+and the methods' reward-module arguments), the protocol's :class:`~sb3_cic.study.settings.Settings` and the command lines
 (:mod:`sb3_cic.parsers`, through :func:`option_type`). This module imports nothing heavy (no torch, no gymnasium):
 the command line builds its parsers and prints ``--help`` with it alone.
 """
@@ -105,7 +105,7 @@ STEPS = Range(1, MAX_STEPS, integer=True)
 #: the range of every numeric argument, by name: :class:`~sb3_cic.ddpg.URLBDDPG`'s (``learning_rate`` may also be a
 #: schedule, ``gradient_steps`` -1, ``train_freq`` a ``(frequency, unit)`` tuple, ``batch_size`` is at most
 #: ``buffer_size``), the policy's, the methods' reward-module and skill-prior parameters (checked under the method's
-#: argument name, e.g. ``cic_hidden_dim`` for ``hidden_dim``), the protocol's :class:`~sb3_cic.protocol.Settings`
+#: argument name, e.g. ``cic_hidden_dim`` for ``hidden_dim``), the protocol's :class:`~sb3_cic.study.settings.Settings`
 #: and the command-line options (``--max-retries``, ``--reps``...)
 RANGES: dict[str, Range] = {
     # URLBDDPG

@@ -1,4 +1,6 @@
-"""``sb3-cic study`` and ``sb3-cic status``."""
+"""``sb3-cic protocol``, ``sb3-cic study`` and ``sb3-cic status``: the command lines of the study driver
+(:mod:`sb3_cic.study.driver`); both run commands take the same settings (:func:`~sb3_cic.parsers.add_settings_arguments`),
+pairing and ``--conf-file``."""
 
 from __future__ import annotations
 
@@ -7,10 +9,14 @@ import contextlib
 import os
 import signal
 import sys
-from typing import Any, Iterator, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Iterator, Sequence
 
 from sb3_cic.common.arguments import argument_parser, check_device_available, option_type
-from sb3_cic.parsers import add_pairing_arguments, add_settings_arguments
+from sb3_cic.parsers import add_pairing_arguments, add_settings_arguments, conf_files_of, settings_values
+
+if TYPE_CHECKING:
+    from sb3_cic.study.settings import Settings
 
 #: the exit codes of a command ended by a signal (the shell's: 128 + the signal's number)
 INTERRUPTED_CODES: dict[int, int] = {signal.SIGINT: 130, signal.SIGTERM: 143}
@@ -32,6 +38,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--from-snapshot", type=option_type("from_snapshot"), default=None, metavar="STEP",
                         help="fine-tune from the snapshot at this pre-training step (one of --snapshots; default: "
                         "the final one); the runs are <method>@STEP")
+    parser.add_argument("--conf-file", nargs="+", default=None, metavar="[METHOD=]FILE",
+                        help="each method's yaml, METHOD=FILE (FILE alone with one of --methods; default: "
+                        "zoo_configs/<method>.yml), recorded in study.json: a study keeps its yaml")
     add_settings_arguments(parser)
     parser.add_argument("--address", default=None,
                         help="join a running Ray cluster (auto, ray://host:10001...; default: start a local one)")
@@ -83,11 +92,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if args.address is None:  # on a cluster, the nodes that run the runs may have the GPUs the driver lacks
         check_device_available(args.device)
-    from sb3_cic.protocol import settings_from_args
+    conf_files = conf_files_of(args.conf_file, args.methods)
+    settings = settings_from_args(args)
     from sb3_cic.study.engine import run_study
     from sb3_cic.study.graph import status_report
 
-    settings = settings_from_args(args)
     received: list[int] = []
     try:
         with interruptible() as received:
@@ -96,6 +105,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 pretrain_seed=args.pretrain_seed, address=args.address, workers=args.workers,
                 cpus_per_run=args.cpus_per_run, gpus_per_run=args.gpus_per_run, max_retries=args.max_retries,
                 progress_bar=not args.no_progress, from_snapshot=args.from_snapshot, pairing=args.pairing,
+                conf_files=conf_files,
             )
     except KeyboardInterrupt:
         signum = received[0] if received else signal.SIGINT
@@ -106,6 +116,32 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(report)
     print(f"{len(statuses)} runs ran now; report: sb3-cic report {args.study}")
     return 0 if finished else 1
+
+
+def settings_from_args(args: argparse.Namespace) -> Settings:
+    """The :class:`~sb3_cic.study.settings.Settings` of the options of :func:`~sb3_cic.parsers.add_settings_arguments`
+    (a ``ValueError`` naming the options that do not go together, see :func:`~sb3_cic.parsers.settings_values`)."""
+    from sb3_cic.study.settings import Settings
+
+    return Settings(**settings_values(args))
+
+
+def protocol_main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
+    """``sb3-cic protocol``: the runs of one method and domain, in this process
+    (:func:`~sb3_cic.study.driver.run_protocol`); returns the fine-tunings' results."""
+    from sb3_cic.parsers import build_parser
+
+    args = build_parser().parse_args(argv)
+    settings = settings_from_args(args)
+    from sb3_cic.study import driver
+
+    results = driver.run_protocol(
+        args.study, args.method, args.domain, tasks=args.tasks, seeds=args.seeds, settings=settings,
+        snapshot=args.snapshot, from_scratch=args.from_scratch, pretrain_seed=args.pretrain_seed,
+        config=args.conf_file, pairing=args.pairing,
+    )
+    print(f"{len(results)} fine-tuning runs in {Path(args.study) / 'finetune'}; report: sb3-cic report {args.study}")
+    return results
 
 
 def status_main(argv: Sequence[str] | None = None) -> int:
