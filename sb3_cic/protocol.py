@@ -34,9 +34,10 @@ from sb3_cic import zoo
 from sb3_cic.callbacks import SkillGridSweepCallback, URLBEvalCallback
 from sb3_cic.common.fast_update import enable_tf32
 from sb3_cic.common.progress import close_progress, progress_callback
+from sb3_cic.common.resumable import RunCheckpointCallback
 from sb3_cic.constants import EXPERT_SCORES
 from sb3_cic.finetune import finetune_callbacks
-from sb3_cic.study.checkpoint import RunCheckpointCallback, RunFolder
+from sb3_cic.study.checkpoint import RunFolder
 from sb3_cic.study.layout import pretrain_dir, snapshot_file, task_env_id, task_name
 from sb3_cic.study.record import Pairing, check_resume_settings, check_run_settings, write_run_settings
 from sb3_cic.study.run import Run

@@ -259,14 +259,32 @@ def check_ranges(args: dict[str, Any], names: Iterable[str] | None = None) -> No
         raise ValueError(f"batch_size must be at most buffer_size ({buffer_size}), got {batch_size!r}")
 
 
+def parameters_of(func: Any) -> dict[str, inspect.Parameter]:
+    """The named parameters of ``func`` (a function or a class's constructor); a class whose constructor passes
+    ``**kwargs`` through to its parent's also takes the parent's (as :class:`~sb3_cic.rewards.moss.MOSSReward`
+    takes :class:`~sb3_cic.rewards.cic.CICReward`'s).
+
+    :param func: a function or a class
+    """
+    parameters = dict(inspect.signature(func).parameters)
+    passed = [name for name, parameter in parameters.items() if parameter.kind is inspect.Parameter.VAR_KEYWORD]
+    if passed and isinstance(func, type):
+        parent = next((base for base in func.__mro__[1:] if "__init__" in vars(base)), object)
+        if parent is not object:
+            del parameters[passed[0]]
+            for name, parameter in parameters_of(parent).items():
+                parameters.setdefault(name, parameter)
+    return parameters
+
+
 def parameter_default(func: Any, name: str) -> Any:
-    """The default value of the parameter ``name`` of ``func`` (a function or a class's constructor), the one
-    place that default is written.
+    """The default value of the parameter ``name`` of ``func`` (a function or a class's constructor, its parent's
+    for a parameter it passes through: :func:`parameters_of`), the one place that default is written.
 
     :param func: a function or a class
     :param name: the parameter's name
     """
-    default = inspect.signature(func).parameters[name].default
+    default = parameters_of(func)[name].default
     if default is inspect.Parameter.empty:
         raise ValueError(f"{getattr(func, '__name__', func)}'s {name} has no default")
     return default

@@ -3,7 +3,6 @@ choice, kept critic layers) and how the model builds them."""
 
 from __future__ import annotations
 
-import inspect
 import sys
 import warnings
 from typing import Any, ClassVar
@@ -11,7 +10,7 @@ from typing import Any, ClassVar
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.type_aliases import GymEnv
 
-from sb3_cic.common.arguments import check_argument, parameter_default
+from sb3_cic.common.arguments import check_argument, parameter_default, parameters_of
 from sb3_cic.common.env_util import env_id_of, is_reward_free_env
 from sb3_cic.rewards.base import RewardModule
 from sb3_cic.skills import SkillPrior
@@ -152,7 +151,7 @@ class MethodMixin:
         """The method's reward module: :attr:`reward_module_class` with the :attr:`reward_module_args` (None: none)."""
         if self.reward_module_class is None:
             return None
-        parameters = inspect.signature(self.reward_module_class).parameters
+        parameters = parameters_of(self.reward_module_class)
         kwargs = {parameter: getattr(self, name) for name, parameter in self.reward_module_args.items()}
         kwargs = {parameter: value for parameter, value in kwargs.items() if value is not None}
         if "hidden_dim" in parameters:
