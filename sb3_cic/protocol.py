@@ -41,7 +41,8 @@ from sb3_cic.study.checkpoint import RunFolder
 from sb3_cic.study.layout import pretrain_dir, snapshot_file, task_env_id, task_name
 from sb3_cic.study.record import Pairing, check_resume_settings, check_run_settings, write_run_settings
 from sb3_cic.study.run import Run
-from sb3_cic.study.settings import Settings, run_identity, run_record
+from sb3_cic.study.settings import Settings
+from sb3_cic.study.settings_record import run_identity, run_record
 from sb3_cic.study.snapshots import SnapshotCallback, check_pretraining, file_sha256, snapshot_steps
 
 
@@ -83,7 +84,7 @@ class RunStart:
     """A run about to train: its folder, the settings it records and the checkpoint it resumes from.
 
     :param folder: the run folder
-    :param record: what the folder records of the run (:func:`~sb3_cic.study.settings.run_record`)
+    :param record: what the folder records of the run (:func:`~sb3_cic.study.settings_record.run_record`)
     :param checkpoint: the checkpoint's meta (None: the run starts at step 0)
     """
 

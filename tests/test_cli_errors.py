@@ -14,7 +14,6 @@ from pathlib import Path
 
 import pytest
 
-from sb3_cic import parsers
 from sb3_cic.study import cli as study_cli, driver
 from sb3_cic.cli import main
 from waiting import run_process
@@ -189,6 +188,6 @@ def test_bad_values_are_refused_before_anything_runs(arguments, message, workdir
 
 def test_small_keeps_an_explicit_zero():
     """``--learning-starts 0`` with ``--small`` is 0 (it was taken for "not given" and became 500)."""
-    args = parsers.build_parser().parse_args(["--small", "--learning-starts", "0"])
+    args = study_cli.protocol_parser().parse_args(["--small", "--learning-starts", "0"])
     settings = study_cli.settings_from_args(args)
     assert settings.learning_starts == 0 and settings.batch_size == 32 and settings.hidden_dim == 32

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from sb3_cic import parsers
+from sb3_cic.study.cli import conf_files_of
 from sb3_cic.study.driver import check_conf_files
 from sb3_cic.study.run import Run
 from test_study_folder import _exit, _refused  # a command's exit code and output, run in process
@@ -99,12 +99,12 @@ def test_protocol_and_study_give_the_same_files(tmp_path: Path, capsys: pytest.C
 )
 def test_a_conf_file_names_its_method(values, methods, message):
     with pytest.raises(ValueError, match=message):
-        parsers.conf_files_of(values, methods)
+        conf_files_of(values, methods)
 
 
 def test_conf_files_are_read_per_method(tmp_path: Path):
-    assert parsers.conf_files_of(["dir/a.yml"], ["cic"]) == {"cic": "dir/a.yml"}
-    assert parsers.conf_files_of(["ddpg=a.yml", "cic=b=c.yml"], ["all"]) == {"ddpg": "a.yml", "cic": "b=c.yml"}
+    assert conf_files_of(["dir/a.yml"], ["cic"]) == {"cic": "dir/a.yml"}
+    assert conf_files_of(["ddpg=a.yml", "cic=b=c.yml"], ["all"]) == {"ddpg": "a.yml", "cic": "b=c.yml"}
     runs = [Run("ddpg", "walker", "walker_stand", 0)]
     with pytest.raises(ValueError, match="--conf-file for cic, which is not among the methods \\['ddpg'\\]"):
         check_conf_files(runs, {"cic": None})

@@ -24,7 +24,8 @@ import torch as th
 
 from sb3_cic.cli import main
 from sb3_cic.study.driver import run_protocol
-from sb3_cic.study.settings import Settings, check_study_settings
+from sb3_cic.study.settings import Settings
+from sb3_cic.study.settings_record import check_study_settings
 from sb3_cic.study.checkpoint import RunFolder
 from sb3_cic.study.engine import run_study, start_ray
 from sb3_cic.study.graph import build_graph, settings_use, status_report

@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, ClassVar
 
 import torch as th
 from stable_baselines3.common.type_aliases import ReplayBufferSamples
 
+from sb3_cic.common.arguments import FLAG, Flag, Range
 from sb3_cic.rewards.cic import CICReward
 from sb3_cic.skills import check_skill_mode, control_mask
 
@@ -37,6 +38,8 @@ class MOSSReward(CICReward):
     :param kwargs: the other parameters of :class:`~sb3_cic.rewards.cic.CICReward`, with its defaults
         (``hidden_dim``, ``embed_dim``, ``lr``, ``temperature``, ``knn_k``: the variant's, ``knn_clip``...)
     """
+
+    parameter_ranges: ClassVar[dict[str, Range | Flag]] = {"minus_mean": FLAG}
 
     def __init__(
         self,

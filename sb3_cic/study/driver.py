@@ -26,7 +26,8 @@ from sb3_cic.study.graph import build_graph, check_study, record_runs, settings_
 from sb3_cic.study.layout import task_env_id
 from sb3_cic.study.record import Pairing, StudyLock, check_resume_settings, check_run_settings, resolve_pairing
 from sb3_cic.study.run import Run
-from sb3_cic.study.settings import Settings, check_study_settings, record_study_settings, run_record
+from sb3_cic.study.settings import Settings
+from sb3_cic.study.settings_record import check_study_settings, record_study_settings, run_record
 from sb3_cic.study.snapshots import snapshot_steps
 
 

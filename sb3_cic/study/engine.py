@@ -27,7 +27,7 @@ from typing import Any, Sequence
 
 from tqdm.auto import tqdm
 
-from sb3_cic.common.arguments import check_argument
+from sb3_cic.common.arguments import NON_NEGATIVE_INT, check_argument
 from sb3_cic.protocol import finetune, pretrain
 from sb3_cic.study.checkpoint import RunFolder, process_start_time
 from sb3_cic.study.driver import StudyPlan, drive, plan_study
@@ -219,7 +219,7 @@ class RayExecutor:
         if not self.cpus_per_run > 0 or not self.gpus_per_run >= 0:
             raise ValueError(f"cpus_per_run must be > 0 and gpus_per_run >= 0, got {self.cpus_per_run!r} and "
                              f"{self.gpus_per_run!r}")
-        check_argument("max_retries", self.max_retries)  # no -1 (Ray's "no limit"): a run that kills its worker never ends
+        check_argument("max_retries", self.max_retries, NON_NEGATIVE_INT)  # no -1 (Ray's "no limit"): a run that kills its worker never ends
 
     def run_settings(self, settings: Settings) -> Settings:
         """The settings of a run's task: ``num_threads`` None is ``cpus_per_run`` torch threads, no progress bar."""
