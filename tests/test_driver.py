@@ -111,3 +111,28 @@ def test_conf_files_are_read_per_method(tmp_path: Path):
     with pytest.raises(ValueError, match="no yaml file"):
         check_conf_files(runs, {"ddpg": tmp_path / "missing.yml"})
     assert check_conf_files(runs, {}) == {"ddpg": None}
+
+
+def test_the_final_snapshot_is_the_default_and_others_must_be_saved(tmp_path: Path):
+    """``--snapshot`` / ``--from-snapshot`` at the pre-training's last step is its final snapshot (``cic``, not
+    ``cic@600``); a step the pre-training does not save is refused before anything is written, for both commands."""
+    from sb3_cic.study.driver import check_run_inputs
+    from sb3_cic.study.graph import build_graph
+    from sb3_cic.study.settings import Settings
+
+    settings = Settings(pretrain_steps=600, snapshots=(500,))
+    runs = build_graph(["cic"], ["walker"], ["stand"], [0], from_snapshot=600)
+    assert [run.label for run in check_run_inputs(tmp_path, runs, settings, {}, 600)] == ["cic", "cic"]
+    runs = build_graph(["cic"], ["walker"], ["stand"], [0], from_snapshot=500)
+    assert [run.label for run in check_run_inputs(tmp_path, runs, settings, {}, 500)] == ["cic", "cic@500"]
+    with pytest.raises(ValueError, match=r"no snapshot at 700 steps: the pre-training saves \[500, 600\]"):
+        check_run_inputs(tmp_path, build_graph(["cic"], ["walker"], ["stand"], [0], from_snapshot=700), settings, {}, 700)
+
+
+def test_a_pretraining_method_is_not_run_from_scratch(tmp_path: Path, capsys: pytest.CaptureFixture):
+    """``--from-scratch`` is the default of a method without pre-training; a method that pre-trains is refused in one
+    line (its runs from scratch would take the folders of its fine-tunings)."""
+    line = _refused(["protocol", "--method", "cic", "--domain", "walker", "--from-scratch", "--study",
+                     str(tmp_path / "study"), *FLAGS], capsys)
+    assert "--from-scratch: cic pre-trains" in line
+    assert not (tmp_path / "study").exists()
