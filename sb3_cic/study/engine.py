@@ -92,7 +92,9 @@ def run_graph(plan: StudyPlan, executor: RayExecutor) -> list[dict[str, Any]]:
     refs: dict[Run, Any] = {}
     for run in plan.todo:
         dependency = run.dependency()
-        refs[run] = task.remote(study, run, settings, refs.get(dependency) if dependency else None, plan.config(run))
+        config = plan.config(run)  # absolute, as the study folder: a worker may have another working directory
+        refs[run] = task.remote(study, run, settings, refs.get(dependency) if dependency else None,
+                                None if config is None else str(Path(config).resolve()))
     names = {ref: run for run, ref in refs.items()}
     statuses = []
     pending = list(refs.values())
