@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 import torch as th
 
-from sb3_cic.protocol import Settings
+from sb3_cic.study.settings import Settings
 
 TINY = Settings(
     hidden_dim=32, batch_size=32, learning_starts=500, buffer_size=10_000, pretrain_steps=1000, finetune_steps=1000,
@@ -65,7 +65,7 @@ def time_study(workers: int, root: Path, settings: Settings) -> dict[str, float]
 def time_checkpoint(buffer_size: int, hidden_dim: int, repeats: int, root: Path) -> dict[str, float]:
     """Seconds to write and to load a checkpoint of a CIC pre-training with a full buffer, and its MB."""
     from sb3_cic import CIC
-    from sb3_cic.protocol import SnapshotCallback
+    from sb3_cic.study.snapshots import SnapshotCallback
     from sb3_cic.study.checkpoint import RunFolder
 
     model = CIC("MlpPolicy", "URLB/walker-v0", buffer_size=buffer_size, batch_size=256, learning_starts=500,

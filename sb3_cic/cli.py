@@ -4,7 +4,7 @@
 * ``finetune``: rl_zoo3's ``train`` on a task id from a pre-trained model (``-i model.zip``), where the
   algorithm loads with ``load_pretrained`` (see :class:`sb3_cic.zoo.PretrainedLoader`);
 * ``enjoy``, ``record-video``: rl_zoo3's scripts with our algorithms registered;
-* ``protocol``: the URLB protocol (:mod:`sb3_cic.protocol`);
+* ``protocol``: the URLB protocol for one method and domain, in this process (:mod:`sb3_cic.study.driver`);
 * ``study``, ``status``: the whole study on Ray and its state (:mod:`sb3_cic.study`);
 * ``report``: the score report of a study (:mod:`sb3_cic.evaluation`);
 * ``benchmark-report``: URLB's 12 tasks over several studies beside the CIC paper's Tables 5 and 6
@@ -22,8 +22,8 @@ other settings, an unknown option, a folder that cannot be written...) prints on
 <message>``, exits with code 2 and leaves nothing behind (see :data:`USER_ERRORS`, :data:`FILESYSTEM_ERRORS`,
 :func:`main`); other errors raise as they are. Ctrl-C is one line that says how to go on (exit code 130), a warning
 one line.
-Every numeric option is checked for its type and range while the command line is read (the ranges of
-:data:`sb3_cic.common.arguments.RANGES`; rl-zoo's counts too, :data:`ZOO_OPTIONS`), and no option may be abbreviated,
+Every numeric option is checked for its type and range while the command line is read (each option's range beside
+it; rl-zoo's counts too, :data:`ZOO_OPTIONS`), and no option may be abbreviated,
 rl-zoo's included (``--smal`` is no ``--small``): an option neither sb3-cic nor rl-zoo knows is refused before
 torch loads (:data:`ZOO_SCRIPT_OPTIONS`). ``--help`` shows each option's default and loads neither torch nor
 Ray: the heavy modules are imported by the command handlers, after the arguments are read (``--zoo-help`` shows
@@ -48,8 +48,17 @@ from typing import Any, Iterator, NoReturn, Sequence
 
 import gymnasium as gym
 
-from sb3_cic.common.arguments import argument_parser, check_device_available, device_type, option_type
-from sb3_cic.parsers import small_help
+from sb3_cic.common.arguments import (
+    POSITIVE_INT,
+    SEED,
+    STEPS,
+    Range,
+    argument_parser,
+    check_device_available,
+    device_type,
+    option_type,
+)
+from sb3_cic.study.cli import small_help
 
 USAGE = """usage: sb3-cic {demo,train,finetune,enjoy,record-video,protocol,study,status,report,benchmark-report,skills}
               [options]
@@ -122,18 +131,18 @@ def _one_line_usage_errors() -> Iterator[None]:
         argparse.ArgumentParser.parse_known_args = saved_parse  # type: ignore[method-assign]
 
 
-#: rl-zoo's numeric options (their flags by name in :data:`~sb3_cic.common.arguments.RANGES`) that sb3-cic checks
+#: rl-zoo's numeric options (their flags, range and help by name) that sb3-cic checks
 #: before passing them on; rl-zoo's defaults hold when they are not given
-ZOO_OPTIONS: dict[str, tuple[tuple[str, ...], str]] = {
-    "n_timesteps": (("-n", "--n-timesteps"), "steps (default: the yaml's n_timesteps; enjoy, record-video: 1000)"),
-    "seed": (("--seed",), "random seed (default: a random one; enjoy, record-video: 0)"),
-    "num_threads": (("--num-threads",), "torch threads (default: torch's)"),
-    "n_envs": (("--n-envs",), "envs (default: 1)"),
-    "n_eval_envs": (("--n-eval-envs",), "rl-zoo's evaluation envs (default: 1)"),
-    "save_freq": (("--save-freq",), "steps between saved checkpoints of the model (default: none)"),
-    "log_interval": (("--log-interval",), "episodes between log outputs (default: the algorithm's)"),
-    "exp_id": (("--exp-id",), "experiment id (default: 0, the latest; -1: no experiment folder)"),
-    "verbose": (("--verbose",), "verbosity (default: 1)"),
+ZOO_OPTIONS: dict[str, tuple[tuple[str, ...], Range, str]] = {
+    "n_timesteps": (("-n", "--n-timesteps"), STEPS, "steps (default: the yaml's n_timesteps; enjoy, record-video: 1000)"),
+    "seed": (("--seed",), SEED, "random seed (default: a random one; enjoy, record-video: 0)"),
+    "num_threads": (("--num-threads",), POSITIVE_INT, "torch threads (default: torch's)"),
+    "n_envs": (("--n-envs",), POSITIVE_INT, "envs (default: 1)"),
+    "n_eval_envs": (("--n-eval-envs",), POSITIVE_INT, "rl-zoo's evaluation envs (default: 1)"),
+    "save_freq": (("--save-freq",), POSITIVE_INT, "steps between saved checkpoints of the model (default: none)"),
+    "log_interval": (("--log-interval",), POSITIVE_INT, "episodes between log outputs (default: the algorithm's)"),
+    "exp_id": (("--exp-id",), Range(-1, integer=True), "experiment id (default: 0, the latest; -1: no experiment folder)"),
+    "verbose": (("--verbose",), Range(0, 2, integer=True), "verbosity (default: 1)"),
 }
 #: the :data:`ZOO_OPTIONS` of each command that passes its options to rl-zoo
 ZOO_COMMAND_OPTIONS: dict[str, tuple[str, ...]] = {
@@ -188,8 +197,8 @@ def _check_zoo_options(rest: Sequence[str], script: str) -> None:
 def _add_zoo_options(parser: argparse.ArgumentParser, command: str) -> None:
     """The checked rl-zoo options of ``command`` (:data:`ZOO_COMMAND_OPTIONS`), default None (rl-zoo's)."""
     for name in ZOO_COMMAND_OPTIONS[command]:
-        flags, text = ZOO_OPTIONS[name]
-        parser.add_argument(*flags, dest=name, type=option_type(name), default=None, help=text)
+        flags, bound, text = ZOO_OPTIONS[name]
+        parser.add_argument(*flags, dest=name, type=option_type(bound), default=None, help=text)
 
 
 def _zoo_options(known: argparse.Namespace, command: str) -> list[str]:
@@ -253,9 +262,9 @@ def zoo_parser(command: str) -> argparse.ArgumentParser:
     parser.add_argument("-params", "--hyperparams", nargs="+", default=[],
                         help="rl-zoo's key:value overrides of the yaml (e.g. batch_size:256; default: none)")
     parser.add_argument("--small", action="store_true", help=small_help())
-    parser.add_argument("--eval-freq", type=option_type("eval_freq"), default=None,
+    parser.add_argument("--eval-freq", type=option_type(POSITIVE_INT), default=None,
                         help="steps between the yaml's URLBEvalCallback evaluations (default: the yaml's)")
-    parser.add_argument("--eval-episodes", type=option_type("eval_episodes"), default=None,
+    parser.add_argument("--eval-episodes", type=option_type(POSITIVE_INT), default=None,
                         help="episodes of each of those evaluations (default: the yaml's)")
     parser.add_argument("-f", "--log-folder", default="logs", help="log folder")
     parser.add_argument("--compile", action="store_true", help="compile_update=True: the update compiled as one graph")
@@ -562,12 +571,11 @@ def _run(command: str, argv: list[str]) -> int:
     elif command in ("record-video", "record_video"):
         record_video(argv)
     elif command == "protocol":
-        from sb3_cic.parsers import build_parser
+        from sb3_cic.study.cli import protocol_parser
 
-        args = build_parser().parse_args(argv)  # --help and refused options before the protocol's code (torch) loads
+        args = protocol_parser().parse_args(argv)  # --help and refused options before the protocol's code (torch) loads
         check_device_available(args.device)
-        from sb3_cic.protocol import main as protocol_main
-        from sb3_cic.study.cli import interruptible
+        from sb3_cic.study.cli import interruptible, protocol_main
 
         with interruptible():  # SIGTERM too: :func:`main` says how to resume
             protocol_main(argv)

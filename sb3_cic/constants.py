@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+#: what ``--small`` sets (of ``protocol``, ``study``, ``train`` and ``finetune``): CPU-sized networks, batches and
+#: replay; an option given explicitly wins; the step counts are not changed
+SMALL_SETTINGS: dict[str, int] = {"hidden_dim": 32, "batch_size": 32, "learning_starts": 500, "buffer_size": 100_000}
+
 #: URLB's pre-training snapshots (steps)
 DEFAULT_SNAPSHOTS: tuple[int, ...] = (100_000, 500_000, 1_000_000, 2_000_000)
 

@@ -16,7 +16,19 @@ from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, ReplayBufferSamples, Schedule
 
 from sb3_cic.buffers import URLBReplayBuffer
-from sb3_cic.common.arguments import check_ddpg_arguments, check_range, check_ranges
+from sb3_cic.common.arguments import (
+    FLAG,
+    FRACTION,
+    NON_NEGATIVE,
+    NON_NEGATIVE_INT,
+    POSITIVE,
+    POSITIVE_INT,
+    SEED,
+    Flag,
+    Range,
+    check_range,
+    check_ranges,
+)
 from sb3_cic.common.env_util import check_finite_step, dict_layout_of, env_id_of, prepare_env, vec_normalize_of
 from sb3_cic.common.fast_update import UpdateMetrics, compiled_step
 from sb3_cic.common.method import MethodMixin
@@ -27,7 +39,7 @@ from sb3_cic.envs.dict_obs import StateDictLayout
 from sb3_cic.finetune import start_finetuning, with_finetune_callback
 from sb3_cic.policies import URLBPolicy, min_q, normalize_policy_kwargs
 from sb3_cic.rewards.base import RewardModule
-from sb3_cic.skills import SkillPrior
+from sb3_cic.skills import SKILL_DIM, SkillPrior
 from sb3_cic.speed import lean_action, speed_options
 from sb3_cic.tensor_buffer import TensorReplayBuffer
 
@@ -110,6 +122,16 @@ class URLBDDPG(MethodMixin, SkillMixin, LeanRolloutMixin, SaveLoadMixin, DDPG):
 
     #: freeze the critic's weights during the actor step (no weight gradients; same actor update)
     freeze_critic_in_actor_step: bool = True
+    #: the range of each numeric (or bool) argument (a method adds its own: :func:`~sb3_cic.common.arguments.ranges_of`);
+    #: ``learning_rate`` may also be a schedule, ``gradient_steps`` -1, ``train_freq`` a ``(frequency, unit)`` tuple,
+    #: ``batch_size`` is at most ``buffer_size`` (:func:`~sb3_cic.common.arguments.check_ranges`)
+    argument_ranges: ClassVar[dict[str, Range | Flag]] = {
+        "learning_rate": POSITIVE, "buffer_size": POSITIVE_INT, "batch_size": POSITIVE_INT,
+        "learning_starts": NON_NEGATIVE_INT, "tau": FRACTION, "gamma": FRACTION, "gradient_steps": NON_NEGATIVE_INT,
+        "train_freq": POSITIVE_INT, "n_steps": POSITIVE_INT, "exploration_std": NON_NEGATIVE,
+        "exploration_clip": NON_NEGATIVE, "stats_window_size": POSITIVE_INT, "skill_dim": SKILL_DIM,
+        "skill_resample_every": POSITIVE_INT, "verbose": Range(0, 2, integer=True), "seed": SEED, "reward_free": FLAG,
+    }
     #: the ``compile_update`` argument (a class default for models saved before it existed)
     compile_update: bool | dict[str, Any] = False
     #: built with ``"MultiInputPolicy"``: Dict observations are flattened (a class default for older models)
@@ -152,7 +174,7 @@ class URLBDDPG(MethodMixin, SkillMixin, LeanRolloutMixin, SaveLoadMixin, DDPG):
         **method_kwargs: Any,
     ) -> None:
         replay_buffer_class = replay_buffer_class or URLBReplayBuffer
-        check_ddpg_arguments(locals())
+        check_ddpg_arguments(locals(), URLBDDPG.argument_ranges)
         self._declare(method_kwargs, skill_prior, skill_dim, finetune_skill_choice)  # the method's parts
         policy_kwargs = normalize_policy_kwargs(policy_kwargs)
         #: the id of the env the model was built on (None if it has none), and what saved it: read by
@@ -373,3 +395,24 @@ class URLBDDPG(MethodMixin, SkillMixin, LeanRolloutMixin, SaveLoadMixin, DDPG):
         model = cls.load(path, env=env, device=device, reward_free=False, **kwargs)
         start_finetuning(model, env, finetune_critic or cls.finetune_critic)
         return model
+
+
+def check_ddpg_arguments(args: dict[str, Any], ranges: dict[str, Range | Flag]) -> None:
+    """``ValueError`` naming the first of :class:`URLBDDPG`'s arguments that it cannot take.
+
+    :param args: the constructor's arguments by name (its ``locals()``)
+    :param ranges: the range of each (:attr:`URLBDDPG.argument_ranges`)
+    """
+    if args["optimize_memory_usage"]:
+        raise ValueError(
+            "optimize_memory_usage is not supported: URLB's n-step replay buffer keeps next observations; "
+            "lower buffer_size to save memory"
+        )
+    buffer_class = args["replay_buffer_class"]
+    if not (isinstance(buffer_class, type) and issubclass(buffer_class, URLBReplayBuffer)):
+        raise ValueError(
+            f"replay_buffer_class must subclass sb3_cic.URLBReplayBuffer (n-step returns, skill-consistent next "
+            f"observations, intrinsic-reward relabelling), got {buffer_class!r}; HerReplayBuffer needs goal-conditioned "
+            "Dict observations, which URLB agents do not take"
+        )
+    check_ranges(args, ranges, ranges)

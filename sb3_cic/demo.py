@@ -28,8 +28,12 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from sb3_cic.common.arguments import NON_NEGATIVE_INT, argument_parser, option_type
+from sb3_cic.common.arguments import NON_NEGATIVE_INT, POSITIVE_INT, SEED, argument_parser, option_type
 from sb3_cic.constants import EXPERT_SCORES
+from sb3_cic.study.settings import Settings
+
+#: the ranges of the options that set what a study setting sets (the width, the batch...)
+SETTINGS = Settings.RANGES
 
 if TYPE_CHECKING:
     from sb3_cic.callbacks import URLBEvalCallback
@@ -94,19 +98,19 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser.add_argument("--snapshot", type=Path, default=None, help="pre-trained CIC of the domain (default: the shipped one)")
     parser.add_argument("--pretrain-steps", type=NON_NEGATIVE_INT.parse, default=0,
                         help="pre-train a fresh CIC for this long instead (0: use the snapshot)")
-    parser.add_argument("--hidden-dim", type=option_type("hidden_dim"), default=256,
+    parser.add_argument("--hidden-dim", type=option_type(SETTINGS["hidden_dim"]), default=256,
                         help="width of the fresh pre-training's networks")
-    parser.add_argument("--batch-size", type=option_type("batch_size"), default=256, help="batch of the fresh pre-training")
-    parser.add_argument("--steps", type=option_type("steps"), default=20_000,
+    parser.add_argument("--batch-size", type=option_type(SETTINGS["batch_size"]), default=256, help="batch of the fresh pre-training")
+    parser.add_argument("--steps", type=option_type(POSITIVE_INT), default=20_000,
                         help="fine-tuning / from-scratch steps of each method, above --learning-starts")
-    parser.add_argument("--learning-starts", type=option_type("learning_starts"), default=4_000,
+    parser.add_argument("--learning-starts", type=option_type(SETTINGS["learning_starts"]), default=4_000,
                         help="random steps before learning (CIC: its skill sweep, 100 steps per candidate)")
-    parser.add_argument("--eval-every", type=option_type("eval_freq"), default=2_000, help="steps between evaluations")
-    parser.add_argument("--eval-episodes", type=option_type("eval_episodes"), default=10,
+    parser.add_argument("--eval-every", type=option_type(SETTINGS["eval_freq"]), default=2_000, help="steps between evaluations")
+    parser.add_argument("--eval-episodes", type=option_type(SETTINGS["eval_episodes"]), default=10,
                         help="deterministic episodes per evaluation (URLB: 10)")
-    parser.add_argument("--skills", type=option_type("video_skills"), default=9, help="skills in the video (0: no video)")
-    parser.add_argument("--seed", type=option_type("seed"), default=0, help="seed of both runs")
-    parser.add_argument("--num-threads", type=option_type("num_threads"), default=1,
+    parser.add_argument("--skills", type=option_type(NON_NEGATIVE_INT), default=9, help="skills in the video (0: no video)")
+    parser.add_argument("--seed", type=option_type(SEED), default=0, help="seed of both runs")
+    parser.add_argument("--num-threads", type=option_type(SETTINGS["num_threads"]), default=1,
                         help="torch threads (the study's runs use 1)")
     parser.add_argument("--out", type=Path, default=Path("demo_output"), help="folder for the video, the plot and the models")
     args = parser.parse_args(argv)

@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Any, Sequence
 import gymnasium as gym
 import numpy as np
 
-from sb3_cic.common.arguments import argument_parser, option_type
+from sb3_cic.common.arguments import POSITIVE_INT, SEED, Range, argument_parser, option_type
 
 if TYPE_CHECKING:  # torch loads with the snapshot, not with ``sb3-cic skills --help``
     from sb3_cic.ddpg import URLBDDPG
@@ -215,14 +215,14 @@ def main(argv: Sequence[str] | None = None) -> None:
         "each skill takes the body. Rendering needs an OpenGL backend (headless: MUJOCO_GL=egl).",
     )
     parser.add_argument("snapshot", type=Path, help="saved skill model (.zip)")
-    parser.add_argument("--n", type=option_type("n_skills"), default=9, help="number of skills (tiles)")
-    parser.add_argument("--steps", type=option_type("steps"), default=250, help="env steps per skill")
+    parser.add_argument("--n", type=option_type(POSITIVE_INT), default=9, help="number of skills (tiles)")
+    parser.add_argument("--steps", type=option_type(POSITIVE_INT), default=250, help="env steps per skill")
     parser.add_argument("--out", default="skills.mp4", help="video file (.mp4 or .gif)")
     parser.add_argument("--plot", default=None, help="PNG of where each skill goes (default: no plot)")
     parser.add_argument("--no-video", action="store_true", help="only the plot: nothing rendered, no OpenGL needed")
     parser.add_argument("--env", default=None, help="env id (default: the snapshot's pre-training env)")
-    parser.add_argument("--size", type=option_type("tile_size"), default=160, help="tile size in pixels")
-    parser.add_argument("--seed", type=option_type("seed"), default=0, help="seed of the envs (the same start for each skill)")
+    parser.add_argument("--size", type=option_type(Range(16, 1024, integer=True)), default=160, help="tile size in pixels")
+    parser.add_argument("--seed", type=option_type(SEED), default=0, help="seed of the envs (the same start for each skill)")
     parser.add_argument("--grid", action="store_true", help="the prior's fine-tuning grid instead of random skills")
     args = parser.parse_args(argv)
     if not args.snapshot.exists():

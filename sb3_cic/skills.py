@@ -7,11 +7,18 @@ fine-tuning callbacks (which sweep its :meth:`SkillPrior.grid`).
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from typing import ClassVar
 
 import numpy as np
 import torch as th
 
-from sb3_cic.common.arguments import RANGES
+from sb3_cic.common.arguments import POSITIVE, POSITIVE_INT, Flag, Range
+
+#: the largest skill a method takes (``skill_dim``): the URLB methods use 4 to 64; a prior of thousands of
+#: dimensions makes every update slow (the skill is part of every network's input) and a grid sweep meaningless
+MAX_SKILL_DIM = 1024
+#: the size of a skill
+SKILL_DIM = Range(1, MAX_SKILL_DIM, integer=True)
 
 
 class SkillPrior(ABC):
@@ -22,8 +29,11 @@ class SkillPrior(ABC):
     :param high: upper bound of every skill coordinate (observation space bound)
     """
 
+    #: the range of each numeric parameter (a subclass adds its own: :func:`~sb3_cic.common.arguments.ranges_of`)
+    parameter_ranges: ClassVar[dict[str, Range | Flag]] = {"dim": SKILL_DIM}
+
     def __init__(self, dim: int, low: float, high: float) -> None:
-        self.dim = int(RANGES["skill_dim"].check("skill dim", dim))
+        self.dim = int(SKILL_DIM.check("skill dim", dim))
         self.low = float(low)
         self.high = float(high)
 
@@ -176,6 +186,8 @@ class MixtureSkillPrior(SkillPrior):
     :param skill_mode: "half" or "sign" (see above)
     :param episode_length: steps of an episode (URLB's 1,000)
     """
+
+    parameter_ranges: ClassVar[dict[str, Range | Flag]] = {"partitions": POSITIVE, "episode_length": POSITIVE_INT}
 
     def __init__(self, dim: int = 32, partitions: float = 2, skill_mode: str = "half", episode_length: int = 1000) -> None:
         super().__init__(dim, -1.0, 1.0)

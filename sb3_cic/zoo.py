@@ -29,14 +29,14 @@ from stable_baselines3.common.type_aliases import GymEnv
 
 from sb3_cic import envs  # noqa: F401  (registers the URLB ids)
 from sb3_cic.envs.skill_wrapper import SkillObservationWrapper
+from sb3_cic.constants import SMALL_SETTINGS
 from sb3_cic.ddpg import URLBDDPG
-from sb3_cic.parsers import SMALL_SETTINGS
 
 #: folder of the rl-zoo yaml files (``zoo_configs/<algo>.yml`` of the repository, installed as the package
 #: ``sb3_cic.zoo_configs``: found through the package, in a checkout and from a wheel alike)
 CONFIG_DIR = Path(str(importlib.resources.files("sb3_cic.zoo_configs")))
 
-#: CPU-sized hyperparameters (``sb3-cic train --small``): :data:`sb3_cic.parsers.SMALL_SETTINGS` as rl-zoo overrides
+#: CPU-sized hyperparameters (``sb3-cic train --small``): :data:`sb3_cic.constants.SMALL_SETTINGS` as rl-zoo overrides
 SMALL_HYPERPARAMS: dict[str, Any] = {
     **{key: value for key, value in SMALL_SETTINGS.items() if key != "hidden_dim"},
     "policy_kwargs": f"dict(hidden_dim={SMALL_SETTINGS['hidden_dim']})",

@@ -1,5 +1,6 @@
 """Every constructor argument of the eleven classes, and the protocol's settings, checked for type and range before
-anything is built: a ``ValueError`` naming the argument (the ranges: ``sb3_cic.common.arguments.RANGES``)."""
+anything is built: a ``ValueError`` naming the argument. Each range sits beside its owner: ``URLBDDPG.argument_ranges``
+(a method's own in the method's), a reward module's or skill prior's ``parameter_ranges``, ``Settings.RANGES``."""
 
 import math
 
@@ -7,19 +8,23 @@ import numpy as np
 import pytest
 
 from sb3_cic import APS, APT, CIC, DIAYN, ICM, MOSS, RND, SMM, Disagreement, Fixed, ProtoRL, URLBDDPG, UniformSkillPrior
-from sb3_cic.common.arguments import DDPG_ARGUMENTS, FLAGS, MAX_SKILL_DIM, RANGES, Range, check_argument
-from sb3_cic.protocol import Settings
+from sb3_cic.common.arguments import FLAG, Flag, Range, check_argument, ranges_of
+from sb3_cic.skills import MAX_SKILL_DIM
+from sb3_cic.study.settings import Settings
 
 ALL = [URLBDDPG, CIC, ICM, Disagreement, RND, APT, ProtoRL, DIAYN, SMM, APS, MOSS, Fixed]
 SKILLED = [CIC, DIAYN, SMM, APS, MOSS]
 SMALL = dict(policy_kwargs={"hidden_dim": 16}, batch_size=16, buffer_size=1000, learning_starts=20, seed=0)
 
 
-def bad_values(name: str) -> list:
-    """Values outside the range of ``name``: below it, of the wrong type, NaN / infinite."""
-    if name in FLAGS:
+#: URLBDDPG's arguments and their ranges
+DDPG_RANGES = URLBDDPG.argument_ranges
+
+
+def bad_values(name: str, bound: Range | Flag) -> list:
+    """Values outside ``bound``, the range of ``name``: below it, of the wrong type, NaN / infinite."""
+    if isinstance(bound, Flag):
         return [1, "yes", None]
-    bound = RANGES[name]
     below = bound.low if bound.low_open else bound.low - (1 if bound.integer else 0.5)
     if name == "gradient_steps":
         below = -2  # -1: SB3's "as many as env steps"
@@ -31,27 +36,31 @@ def bad_values(name: str) -> list:
     return values
 
 
-def method_arguments(cls) -> list[tuple[str, str]]:
-    """``(argument, key in RANGES or FLAGS)`` of a method's reward-module and skill-prior arguments."""
-    pairs = {**cls.reward_module_args, **cls.skill_prior_args}
-    return [(name, key) for name, key in pairs.items() if key in RANGES or key in FLAGS]
+def method_ranges(cls) -> dict[str, Range | Flag]:
+    """The range of each of a method's reward-module and skill-prior arguments that has one (its parameter's)."""
+    ranges = {}
+    for args, owner in ((cls.reward_module_args, cls.reward_module_class), (cls.skill_prior_args, cls.skill_prior_class)):
+        owned = ranges_of(owner) if owner is not None else {}
+        ranges.update({name: owned[key] for name, key in args.items() if key in owned})
+    return ranges
 
 
 DDPG_CASES = [
     (cls, name, value)
     for cls in ALL
-    for name in DDPG_ARGUMENTS
+    for name, bound in DDPG_RANGES.items()
     if not (name == "skill_dim" and cls not in SKILLED)  # skill_dim of a method without skills: its own error
     and not (name == "skill_dim" and cls is APS)  # APS's is sf_dim (below)
-    for value in bad_values(name)
+    for value in bad_values(name, bound)
     if value is not None  # None: the default of an optional argument
 ]
 #: the arguments of a method's own constructor (not of URLBDDPG, its reward module or its prior)
 OWN_ARGUMENTS = {APS: ("sf_dim", "regression_step", "regression_max_samples")}
 METHOD_CASES = [
-    (cls, name, value) for cls in ALL for name, key in method_arguments(cls) for value in bad_values(key) if value is not None
-] + [(cls, name, value) for cls, names in OWN_ARGUMENTS.items() for name in names for value in bad_values(name)
-     if value is not None]
+    (cls, name, value) for cls in ALL for name, bound in method_ranges(cls).items() for value in bad_values(name, bound)
+    if value is not None
+] + [(cls, name, value) for cls, names in OWN_ARGUMENTS.items() for name in names
+     for value in bad_values(name, ranges_of(cls, "argument_ranges")[name]) if value is not None]
 
 
 @pytest.mark.parametrize("cls, name, value", DDPG_CASES, ids=lambda x: getattr(x, "__name__", repr(x)))
@@ -74,7 +83,8 @@ def test_every_method_argument_has_a_range():
     checked_elsewhere = {"variant", "knn_source", "skill_mode"}  # strings, each checked against its choices
     for cls in ALL:
         for name, key in {**cls.reward_module_args, **cls.skill_prior_args}.items():
-            assert key in RANGES or key in FLAGS or key in checked_elsewhere, (cls.__name__, name)
+            assert name in method_ranges(cls) or key in checked_elsewhere, (cls.__name__, name)
+    assert set(OWN_ARGUMENTS[APS]) <= set(ranges_of(APS, "argument_ranges")) - set(DDPG_RANGES)
 
 
 @pytest.mark.parametrize(
@@ -144,4 +154,6 @@ def test_range_describes_and_parses():
             Range(1, integer=True).parse(text)
     with pytest.raises(Exception, match="must be a finite number > 0, got 'inf'"):
         Range(0.0, low_open=True).parse("inf")
-    assert check_argument("knn_avg", True) is True
+    assert check_argument("knn_avg", True, FLAG) is True
+    with pytest.raises(ValueError, match="^knn_avg must be True or False, got 1$"):
+        check_argument("knn_avg", 1, FLAG)

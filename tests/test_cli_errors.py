@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from sb3_cic import protocol
+from sb3_cic.study import cli as study_cli, driver
 from sb3_cic.cli import main
 from waiting import run_process
 
@@ -103,7 +103,7 @@ def test_other_errors_still_raise(workdir: Path, monkeypatch: pytest.MonkeyPatch
     def broken(*args, **kwargs):
         raise RuntimeError("a bug")
 
-    monkeypatch.setattr(protocol, "run_protocol", broken)
+    monkeypatch.setattr(driver, "run_protocol", broken)
     with pytest.raises(RuntimeError, match="a bug"):
         main(["protocol", "--method", "ddpg", "--study", "s"])
     assert argparse.ArgumentParser.error.__module__ == "argparse"  # restored
@@ -188,6 +188,6 @@ def test_bad_values_are_refused_before_anything_runs(arguments, message, workdir
 
 def test_small_keeps_an_explicit_zero():
     """``--learning-starts 0`` with ``--small`` is 0 (it was taken for "not given" and became 500)."""
-    args = protocol.build_parser().parse_args(["--small", "--learning-starts", "0"])
-    settings = protocol.settings_from_args(args)
+    args = study_cli.protocol_parser().parse_args(["--small", "--learning-starts", "0"])
+    settings = study_cli.settings_from_args(args)
     assert settings.learning_starts == 0 and settings.batch_size == 32 and settings.hidden_dim == 32

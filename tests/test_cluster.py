@@ -24,7 +24,8 @@ import ray
 import psutil  # after ray: the copy Ray ships and uses
 from ray.cluster_utils import Cluster
 
-from sb3_cic.protocol import run_protocol, settings_from_args
+from sb3_cic.study.cli import settings_from_args
+from sb3_cic.study.driver import run_protocol
 from sb3_cic.study.cli import build_parser
 from waiting import wait_for
 

@@ -17,7 +17,7 @@ import yaml
 
 import sb3_cic.methods as methods
 from sb3_cic import CIC, URLBDDPG, URLBEvalCallback, zoo
-from sb3_cic.common.arguments import parameter_default
+from sb3_cic.common.arguments import parameter_default, parameters_of
 from sb3_cic.common.method import MethodMixin
 
 #: the four parts a method declares (:class:`~sb3_cic.common.method.MethodMixin`)
@@ -39,7 +39,7 @@ def test_every_method_declares_its_four_parts_in_its_own_file():
         }
         assert set(PARTS) <= declared, (cls.__name__, set(PARTS) - declared)
         assert cls.reward_module_class is not None and cls.finetune_critic in ("trunk", "all", "none")
-        module_parameters = inspect.signature(cls.reward_module_class).parameters
+        module_parameters = parameters_of(cls.reward_module_class)
         assert set(cls.reward_module_args.values()) <= set(module_parameters), cls.__name__
         # no method writes a hook of its own for a part
         assert not {"make_reward_module", "make_finetune_callback", "_make_skill_prior"} & set(vars(cls)), cls.__name__
@@ -147,3 +147,19 @@ def test_a_non_finite_transition_is_an_error_before_it_is_stored(cls, what, valu
     assert model.replay_buffer.pos == 249  # the first 249 transitions; not the 250th
     assert np.isfinite(model.replay_buffer.observations[:249]).all() and np.isfinite(model.replay_buffer.rewards).all()
     assert all(th.isfinite(p).all() for p in model.policy.parameters())
+
+
+def test_moss_reward_passes_cic_reward_parameters_through():
+    """MOSSReward lists only what it adds or sets otherwise; CICReward's other parameters and defaults come through."""
+    from sb3_cic.rewards.cic import CICReward
+    from sb3_cic.rewards.moss import MOSSReward
+
+    cic, moss = parameters_of(CICReward), parameters_of(MOSSReward)
+    assert set(cic) < set(moss) and {"minus_mean", "knn_source", "skill_mode"} <= set(moss)
+    assert (parameter_default(MOSSReward, "skill_dim"), parameter_default(MOSSReward, "variant")) == (32, "code")
+    assert all(parameter_default(MOSSReward, name) == parameter_default(CICReward, name)
+               for name in ("hidden_dim", "embed_dim", "lr", "temperature", "knn_k", "knn_clip", "knn_avg", "knn_rms"))
+    module = MOSSReward(4, 2, hidden_dim=8, lr=3e-4, knn_k=5)
+    assert module.particle.center and module.knn_source == "state" and module.variant == "code"
+    with pytest.raises(TypeError):
+        MOSSReward(4, 2, not_a_parameter=1)

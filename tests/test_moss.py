@@ -16,7 +16,8 @@ from stable_baselines3.common.type_aliases import ReplayBufferSamples
 from sb3_cic.envs.skill_wrapper import SkillSchedule
 from sb3_cic import CIC, MOSS, MixtureSkillPrior, SkillGridSweepCallback
 from sb3_cic.cli import main
-from sb3_cic.protocol import Settings, run_protocol
+from sb3_cic.study.driver import run_protocol
+from sb3_cic.study.settings import Settings
 from sb3_cic.rewards.base import RewardModule
 from sb3_cic.rewards.cic import CICReward
 from sb3_cic.rewards.moss import MOSSReward

@@ -23,7 +23,9 @@ from sb3_cic.cli import main
 from sb3_cic.constants import EXPERT_SCORES
 from sb3_cic import evaluation
 from sb3_cic.evaluation import write_report
-from sb3_cic.protocol import Settings, check_study_settings, conf_file_record, record_study_settings, run_protocol
+from sb3_cic.study.driver import run_protocol
+from sb3_cic.study.settings import Settings
+from sb3_cic.study.settings_record import check_study_settings, conf_file_record, record_study_settings
 from sb3_cic.study.checkpoint import RunFolder
 
 SETTINGS = Settings(

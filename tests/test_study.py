@@ -23,7 +23,9 @@ import ray
 import torch as th
 
 from sb3_cic.cli import main
-from sb3_cic.protocol import Settings, check_study_settings, run_protocol
+from sb3_cic.study.driver import run_protocol
+from sb3_cic.study.settings import Settings
+from sb3_cic.study.settings_record import check_study_settings
 from sb3_cic.study.checkpoint import RunFolder
 from sb3_cic.study.engine import run_study, start_ray
 from sb3_cic.study.graph import build_graph, settings_use, status_report
@@ -296,7 +298,7 @@ def test_fine_tuning_from_an_intermediate_snapshot(ray_instance, tmp_path: Path,
     """--from-snapshot: the runs start from that snapshot, in <method>@STEP folders; study.json rows of 4 still read."""
     settings = replace(SETTINGS, snapshots=(500,))
     study = tmp_path / "study"
-    with pytest.raises(ValueError, match="snapshot at 700 steps needs it among the intermediate snapshots"):
+    with pytest.raises(ValueError, match=r"no snapshot at 700 steps: the pre-training saves \[500, 1000\]"):
         run_study(study, ["cic"], ["walker"], ["stand"], [0], settings, from_snapshot=700, progress_bar=False)
     assert not study.exists()
     runs, statuses = run_study(study, ["cic", "ddpg"], ["walker"], ["stand"], [0], settings, from_snapshot=500,

@@ -21,7 +21,9 @@ import pytest
 import torch as th
 
 from sb3_cic.cli import main
-from sb3_cic.protocol import Settings, conf_file_record, run_protocol
+from sb3_cic.study.driver import run_protocol
+from sb3_cic.study.settings import Settings
+from sb3_cic.study.settings_record import conf_file_record
 from sb3_cic.study.engine import execute
 from sb3_cic.study.graph import Run, alive, build_graph, status_report
 from sb3_cic.study.record import Pairing, StudyLock, changed_entries
@@ -229,7 +231,7 @@ def test_a_read_only_study_folder_is_one_line(tmp_path: Path, capsys: pytest.Cap
         raise PermissionError(13, "Permission denied", str(path))
 
     monkeypatch.setattr(checkpoint, "write_json", read_only)
-    monkeypatch.setattr("sb3_cic.protocol.write_json", read_only)
+    monkeypatch.setattr("sb3_cic.study.settings_record.write_json", read_only)
     line = _refused(["protocol", "--method", "ddpg", "--domain", "walker", "--tasks", "stand", "--seeds", "0",
                      "--study", str(tmp_path / "study"), *TINY_FLAGS], capsys)
     assert "Permission denied" in line

@@ -1,7 +1,7 @@
 """A result is what its folder proves (issue 73): each finding of the red team's report, on tiny studies.
 
 The tiny study (walker flip; CIC, paired, and DDPG; seeds 0 and 1; hidden 32, 600 steps) is made once, in this
-process (:func:`~sb3_cic.protocol.run_protocol`, no Ray), and copied for each case that edits it.
+process (:func:`~sb3_cic.study.driver.run_protocol`, no Ray), and copied for each case that edits it.
 """
 
 from __future__ import annotations
@@ -20,7 +20,9 @@ import pytest
 import torch as th
 
 from sb3_cic.evaluation import load_results, write_report
-from sb3_cic.protocol import Settings, finetune, run_protocol
+from sb3_cic.protocol import finetune
+from sb3_cic.study.driver import run_protocol
+from sb3_cic.study.settings import Settings
 from sb3_cic.study.checkpoint import RunFolder
 from sb3_cic.study.engine import stop_runs
 from sb3_cic.study.graph import Run, run_state, status_report
@@ -166,7 +168,7 @@ def test_a_snapshot_copied_over_another_is_refused(study: Path):
     shutil.copyfile(theirs, ours)
     shutil.rmtree(_run(study, "cic", 0))
     with pytest.raises(ValueError, match="snapshot_600.zip is not the one its pre-training saved"):
-        finetune(study, "cic", "walker", "flip", 0, TINY, paired=True)
+        finetune(study, Run("cic", "walker", "walker_flip", 0, pretrain_seed=0), TINY)
     assert not (_run(study, "cic", 0) / "result.json").exists()
 
 

@@ -1,11 +1,13 @@
-"""Argument checks, the one place of every argument's range: a ``ValueError`` naming the argument in Python, an
-argparse error naming the option on the command line (one line, exit code 2), before anything is written, built
-or trained.
+"""Argument checks: the range an argument takes (:class:`Range`, or :data:`FLAG` for a bool) and the checks that
+raise a ``ValueError`` naming the argument in Python, or an argparse error naming the option on the command line (one
+line, exit code 2), before anything is written, built or trained.
 
-:data:`RANGES` holds the range of each numeric argument by name, shared by the classes (:class:`~sb3_cic.ddpg.URLBDDPG`
-and the methods' reward-module arguments), the protocol's :class:`~sb3_cic.protocol.Settings` and the command lines
-(:mod:`sb3_cic.parsers`, through :func:`option_type`). This module imports nothing heavy (no torch, no gymnasium):
-the command line builds its parsers and prints ``--help`` with it alone.
+Each range sits beside what it validates: :class:`~sb3_cic.ddpg.URLBDDPG`'s arguments in its
+``argument_ranges`` (a method's own in the method's), a reward module's and a skill prior's parameters in their
+``parameter_ranges`` (:func:`ranges_of` merges a class's with its parents'), the protocol settings in
+:class:`~sb3_cic.study.settings.Settings`, each command's own options beside the option. This module holds the
+shared bounds (:data:`POSITIVE_INT`, :data:`STEPS`, :data:`SEED`...) and imports nothing heavy (no torch, no
+gymnasium): the command line builds its parsers and prints ``--help`` with it alone.
 """
 
 from __future__ import annotations
@@ -16,10 +18,6 @@ import math
 import numbers
 from dataclasses import dataclass
 from typing import Any, Callable, Iterable
-
-#: the largest skill a method takes (``skill_dim``): the URLB methods use 4 to 64; a prior of thousands of
-#: dimensions makes every update slow (the skill is part of every network's input) and a grid sweep meaningless
-MAX_SKILL_DIM = 1024
 
 #: the largest seed (numpy's ``SeedSequence`` and Gymnasium take seeds in [0, 2**32 - 1])
 MAX_SEED = 2**32 - 1
@@ -101,101 +99,48 @@ NON_NEGATIVE = Range(0.0)
 FRACTION = Range(0.0, 1.0)
 SEED = Range(0, MAX_SEED, integer=True)
 STEPS = Range(1, MAX_STEPS, integer=True)
+#: any finite number
+FINITE = Range(-math.inf)
 
-#: the range of every numeric argument, by name: :class:`~sb3_cic.ddpg.URLBDDPG`'s (``learning_rate`` may also be a
-#: schedule, ``gradient_steps`` -1, ``train_freq`` a ``(frequency, unit)`` tuple, ``batch_size`` is at most
-#: ``buffer_size``), the policy's, the methods' reward-module and skill-prior parameters (checked under the method's
-#: argument name, e.g. ``cic_hidden_dim`` for ``hidden_dim``), the protocol's :class:`~sb3_cic.protocol.Settings`
-#: and the command-line options (``--max-retries``, ``--reps``...)
-RANGES: dict[str, Range] = {
-    # URLBDDPG
-    "learning_rate": POSITIVE,
-    "buffer_size": POSITIVE_INT,
-    "batch_size": POSITIVE_INT,
-    "learning_starts": NON_NEGATIVE_INT,
-    "tau": FRACTION,
-    "gamma": FRACTION,
-    "gradient_steps": NON_NEGATIVE_INT,
-    "train_freq": POSITIVE_INT,
-    "n_steps": POSITIVE_INT,
-    "exploration_std": NON_NEGATIVE,
-    "exploration_clip": NON_NEGATIVE,
-    "stats_window_size": POSITIVE_INT,
-    "skill_dim": Range(1, MAX_SKILL_DIM, integer=True),
-    "sf_dim": Range(1, MAX_SKILL_DIM, integer=True),  # APS's skill_dim
-    "regression_step": NON_NEGATIVE_INT,  # APS's fine-tuning
-    "regression_max_samples": POSITIVE_INT,
-    "skill_resample_every": POSITIVE_INT,
-    "verbose": Range(0, 2, integer=True),
-    "seed": SEED,
-    # policy
-    "hidden_dim": POSITIVE_INT,
-    "n_critics": POSITIVE_INT,
-    # reward modules and skill priors (their parameter names)
-    "embed_dim": POSITIVE_INT,
-    "rep_dim": POSITIVE_INT,
-    "vae_hidden_dim": POSITIVE_INT,
-    "code_dim": POSITIVE_INT,
-    "pred_dim": POSITIVE_INT,
-    "proj_dim": POSITIVE_INT,
-    "num_protos": POSITIVE_INT,
-    "queue_size": POSITIVE_INT,
-    "topk": POSITIVE_INT,
-    "knn_k": POSITIVE_INT,
-    "n_models": POSITIVE_INT,
-    "sinkhorn_iters": POSITIVE_INT,
-    "lr": POSITIVE,
-    "vae_lr": POSITIVE,
-    "disc_lr": POSITIVE,
-    "temperature": POSITIVE,
-    "knn_clip": NON_NEGATIVE,
-    "scale": NON_NEGATIVE,
-    "vae_beta": NON_NEGATIVE,
-    "target_tau": FRACTION,
-    "partitions": POSITIVE,
-    "episode_length": POSITIVE_INT,
-    "value": Range(-math.inf),  # Fixed's constant reward: any finite number
-    # the protocol's settings
-    "pretrain_steps": STEPS,
-    "finetune_steps": STEPS,
-    "eval_freq": POSITIVE_INT,
-    "eval_episodes": POSITIVE_INT,
-    "snapshots": STEPS,
-    "num_threads": POSITIVE_INT,
-    "pretrain_checkpoint_every": NON_NEGATIVE_INT,
-    "finetune_checkpoint_every": NON_NEGATIVE_INT,
-    # command-line options
-    "checkpoint_every": NON_NEGATIVE_INT,
-    "pretrain_seed": SEED,
-    "seeds": SEED,
-    "snapshot": STEPS,
-    "from_snapshot": STEPS,
-    "workers": POSITIVE_INT,
-    "cpus_per_run": POSITIVE,
-    "gpus_per_run": NON_NEGATIVE,
-    "max_retries": NON_NEGATIVE_INT,
-    "reps": POSITIVE_INT,
-    "n_timesteps": STEPS,
-    "n_eval_envs": POSITIVE_INT,
-    "n_envs": POSITIVE_INT,
-    "exp_id": Range(-1, integer=True),
-    "save_freq": POSITIVE_INT,
-    "log_interval": POSITIVE_INT,
-    "n_skills": POSITIVE_INT,
-    "video_skills": NON_NEGATIVE_INT,
-    "steps": POSITIVE_INT,
-    "tile_size": Range(16, 1024, integer=True),
-}
 
-#: the arguments that are flags (a bool, not a number that happens to be true; None: the default of an optional one)
-FLAGS: frozenset[str] = frozenset({"knn_avg", "knn_rms", "minus_mean", "reward_free"})
+@dataclass(frozen=True)
+class Flag:
+    """An argument that is a bool (not a number that happens to be true)."""
 
-#: URLBDDPG's numeric arguments (checked by :func:`check_ddpg_arguments`)
-DDPG_ARGUMENTS: tuple[str, ...] = (
-    "learning_rate", "buffer_size", "batch_size", "learning_starts", "tau", "gamma", "gradient_steps", "train_freq",
-    "n_steps", "exploration_std", "exploration_clip", "stats_window_size", "skill_dim", "skill_resample_every",
-    "verbose", "seed", "reward_free",
-)
+    def describe(self) -> str:
+        """``"True or False"``."""
+        return "True or False"
+
+    def accepts(self, value: Any) -> bool:
+        """Whether ``value`` is a bool."""
+        return isinstance(value, bool)
+
+    def check(self, name: str, value: Any) -> Any:
+        """Return ``value``, or raise a ``ValueError`` naming ``name`` when it is not a bool."""
+        if not self.accepts(value):
+            raise ValueError(f"{name} must be True or False, got {value!r}")
+        return value
+
+
+#: the range of a bool argument
+FLAG = Flag()
+
+#: the options the report commands name (``--reps``, ``--seed``, ``--seeds`` of ``sb3-cic report`` and
+#: ``benchmark-report``), for :func:`option_type`; every other command's options give their range beside them
+OPTION_RANGES: dict[str, Range] = {"reps": POSITIVE_INT, "seed": SEED, "seeds": SEED}
+
+
+def ranges_of(cls: type, attribute: str = "parameter_ranges") -> dict[str, Range | Flag]:
+    """The ranges a class declares in ``attribute`` (a ``{name: range}`` class attribute), merged with those of its
+    parents (a subclass's win).
+
+    :param cls: a reward module, a skill prior (``parameter_ranges``), an algorithm (``argument_ranges``)
+    :param attribute: the class attribute
+    """
+    merged: dict[str, Range | Flag] = {}
+    for klass in reversed(cls.__mro__):
+        merged.update(vars(klass).get(attribute, {}))
+    return merged
 
 
 def check_range(name: str, value: Any, low: float, high: float = math.inf, low_open: bool = False) -> None:
@@ -220,30 +165,29 @@ def check_positive_int(name: str, value: int) -> int:
     return POSITIVE_INT.check(name, value)
 
 
-def check_argument(name: str, value: Any, key: str | None = None) -> Any:
-    """Return ``value``, or a ``ValueError`` naming ``name`` when it is outside the range of :data:`RANGES` (or not
-    a bool for a name of :data:`FLAGS`); a name neither knows is not checked.
+def check_argument(name: str, value: Any, bound: Range | Flag | None) -> Any:
+    """Return ``value``, or a ``ValueError`` naming ``name`` when it is outside ``bound`` (None: not checked).
 
     :param name: the argument's name for the message
     :param value: the value given
-    :param key: the name in :data:`RANGES` (default: ``name``; a method argument gives its module parameter's)
+    :param bound: its range
     """
-    key = name if key is None else key
-    if key in FLAGS and not isinstance(value, bool):
-        raise ValueError(f"{name} must be True or False, got {value!r}")
-    if key in RANGES:
-        RANGES[key].check(name, value)
+    if bound is not None:
+        bound.check(name, value)
     return value
 
 
-def check_ranges(args: dict[str, Any], names: Iterable[str] | None = None) -> None:
-    """Check the arguments ``names`` found in ``args`` (a constructor's ``locals()``, or a subset); None is the
-    default of an optional argument and is not checked.
+def check_ranges(args: dict[str, Any], ranges: dict[str, Range | Flag], names: Iterable[str] | None = None) -> None:
+    """Check the arguments ``names`` found in ``args`` (a constructor's ``locals()``, or a subset) against ``ranges``;
+    None is the default of an optional argument and is not checked. A ``learning_rate`` may be a schedule, a
+    ``gradient_steps`` -1 (SB3: as many as env steps), a ``train_freq`` a ``(frequency, unit)`` tuple; a
+    ``batch_size`` is at most the ``buffer_size``.
 
     :param args: argument values by name
-    :param names: the names to check (default: those of ``args`` that :data:`RANGES` or :data:`FLAGS` know)
+    :param ranges: the range of each argument by name
+    :param names: the names to check (default: those of ``args`` that ``ranges`` knows)
     """
-    for name in names if names is not None else [name for name in args if name in RANGES or name in FLAGS]:
+    for name in names if names is not None else [name for name in args if name in ranges]:
         value = args.get(name)
         if value is None:
             continue
@@ -253,60 +197,56 @@ def check_ranges(args: dict[str, Any], names: Iterable[str] | None = None) -> No
             continue
         if name == "train_freq" and isinstance(value, tuple):  # (frequency, unit)
             value = value[0]
-        check_argument(name, value)
+        check_argument(name, value, ranges.get(name))
     batch_size, buffer_size = args.get("batch_size"), args.get("buffer_size")
     if batch_size is not None and buffer_size is not None and batch_size > buffer_size:
         raise ValueError(f"batch_size must be at most buffer_size ({buffer_size}), got {batch_size!r}")
 
 
+def parameters_of(func: Any) -> dict[str, inspect.Parameter]:
+    """The named parameters of ``func`` (a function or a class's constructor); a class whose constructor passes
+    ``**kwargs`` through to its parent's also takes the parent's (as :class:`~sb3_cic.rewards.moss.MOSSReward`
+    takes :class:`~sb3_cic.rewards.cic.CICReward`'s).
+
+    :param func: a function or a class
+    """
+    parameters = dict(inspect.signature(func).parameters)
+    passed = [name for name, parameter in parameters.items() if parameter.kind is inspect.Parameter.VAR_KEYWORD]
+    if passed and isinstance(func, type):
+        parent = next((base for base in func.__mro__[1:] if "__init__" in vars(base)), object)
+        if parent is not object:
+            del parameters[passed[0]]
+            for name, parameter in parameters_of(parent).items():
+                parameters.setdefault(name, parameter)
+    return parameters
+
+
 def parameter_default(func: Any, name: str) -> Any:
-    """The default value of the parameter ``name`` of ``func`` (a function or a class's constructor), the one
-    place that default is written.
+    """The default value of the parameter ``name`` of ``func`` (a function or a class's constructor, its parent's
+    for a parameter it passes through: :func:`parameters_of`), the one place that default is written.
 
     :param func: a function or a class
     :param name: the parameter's name
     """
-    default = inspect.signature(func).parameters[name].default
+    default = parameters_of(func)[name].default
     if default is inspect.Parameter.empty:
         raise ValueError(f"{getattr(func, '__name__', func)}'s {name} has no default")
     return default
 
 
-def check_ddpg_arguments(args: dict[str, Any]) -> None:
-    """``ValueError`` naming the first of :class:`~sb3_cic.ddpg.URLBDDPG`'s arguments that it cannot take.
-
-    :param args: the constructor's arguments by name (its ``locals()``)
-    """
-    from sb3_cic.buffers import URLBReplayBuffer
-
-    if args["optimize_memory_usage"]:
-        raise ValueError(
-            "optimize_memory_usage is not supported: URLB's n-step replay buffer keeps next observations; "
-            "lower buffer_size to save memory"
-        )
-    buffer_class = args["replay_buffer_class"]
-    if not (isinstance(buffer_class, type) and issubclass(buffer_class, URLBReplayBuffer)):
-        raise ValueError(
-            f"replay_buffer_class must subclass sb3_cic.URLBReplayBuffer (n-step returns, skill-consistent next "
-            f"observations, intrinsic-reward relabelling), got {buffer_class!r}; HerReplayBuffer needs goal-conditioned "
-            "Dict observations, which URLB agents do not take"
-        )
-    check_ranges(args, DDPG_ARGUMENTS)
-
-
 # the command line ---------------------------------------------------------------------------------
-def option_type(name: str) -> Callable[[str], int | float]:
-    """The argparse ``type`` of an option whose value has the range of ``name`` in :data:`RANGES`.
+def option_type(bound: Range | str) -> Callable[[str], int | float]:
+    """The argparse ``type`` of an option whose value has the range ``bound``.
 
-    :param name: the name in :data:`RANGES` (``"eval_episodes"`` for ``--eval-episodes``)
+    :param bound: the range, or the name of one of :data:`OPTION_RANGES` (``"reps"`` for ``--reps``)
     """
-    parse = RANGES[name].parse
-    kind = "int" if RANGES[name].integer else "float"
+    bound = OPTION_RANGES[bound] if isinstance(bound, str) else bound
+    parse = bound.parse
 
     def convert(text: str) -> int | float:
         return parse(text)
 
-    convert.__name__ = kind  # what argparse would name the type in an error of its own
+    convert.__name__ = "int" if bound.integer else "float"  # what argparse would name the type in an error of its own
     return convert
 
 

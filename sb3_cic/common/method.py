@@ -3,7 +3,6 @@ choice, kept critic layers) and how the model builds them."""
 
 from __future__ import annotations
 
-import inspect
 import sys
 import warnings
 from typing import Any, ClassVar
@@ -11,7 +10,7 @@ from typing import Any, ClassVar
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.type_aliases import GymEnv
 
-from sb3_cic.common.arguments import check_argument, parameter_default
+from sb3_cic.common.arguments import Flag, Range, check_argument, parameter_default, parameters_of, ranges_of
 from sb3_cic.common.env_util import env_id_of, is_reward_free_env
 from sb3_cic.rewards.base import RewardModule
 from sb3_cic.skills import SkillPrior
@@ -78,29 +77,41 @@ class MethodMixin:
         self.skill_prior = self._make_skill_prior(skill_prior, skill_dim)
         self.finetune_skill_choice = self._check_finetune_skill_choice(choice)
 
+    @classmethod
+    def loaded_argument_ranges(cls) -> dict[str, Range | Flag]:
+        """The ranges of the arguments ``load`` may set: the algorithm's (``argument_ranges``) and the method's
+        reward-module and skill-prior arguments (their parameters' ranges)."""
+        ranges = ranges_of(cls, "argument_ranges")
+        for args, owner in ((cls.reward_module_args, cls.reward_module_class), (cls.skill_prior_args, cls.skill_prior_class)):
+            owned = ranges_of(owner) if owner is not None else {}
+            ranges.update({name: owned[parameter] for name, parameter in args.items() if parameter in owned})
+        return ranges
+
     def _set_method_args(self, method_kwargs: dict[str, Any]) -> None:
         """Set the method's reward-module and skill-prior arguments (:attr:`reward_module_args`,
         :attr:`skill_prior_args`) as attributes, their defaults the module's or the prior's; ``TypeError`` for an
         argument the method does not take, ``ValueError`` naming one out of its range
-        (:data:`~sb3_cic.common.arguments.RANGES` of its module parameter).
+        (the range of its module's or prior's parameter, ``parameter_ranges``).
 
         :param method_kwargs: the constructor's extra keyword arguments
         """
         unknown = sorted(set(method_kwargs) - set(self.reward_module_args) - set(self.skill_prior_args))
         if unknown:
             raise TypeError(f"{type(self).__name__}.__init__() got an unexpected keyword argument {unknown[0]!r}")
+        module_ranges = ranges_of(self.reward_module_class) if self.reward_module_class is not None else {}
+        prior_ranges = ranges_of(self.skill_prior_class) if self.skill_prior_class is not None else {}
         for name, parameter in self.reward_module_args.items():
             value = method_kwargs.get(name)
             if value is None and parameter != "hidden_dim":
                 value = parameter_default(self.reward_module_class, parameter)
             if value is not None:  # None: the module's own default (a width: the policy's)
-                check_argument(name, value, key=parameter)
+                check_argument(name, value, module_ranges.get(parameter))
             setattr(self, name, value)
         for name, parameter in self.skill_prior_args.items():
             if name not in self.reward_module_args:
                 value = method_kwargs.get(name)
                 value = parameter_default(self.skill_prior_class, parameter) if value is None else value
-                setattr(self, name, check_argument(name, value, key=parameter))
+                setattr(self, name, check_argument(name, value, prior_ranges.get(parameter)))
 
     def _make_skill_prior(self, skill_prior: SkillPrior | None, skill_dim: int | None) -> SkillPrior | None:
         """The given prior, else the method's :attr:`skill_prior_class` (of size ``skill_dim``, default its own) with
@@ -152,7 +163,7 @@ class MethodMixin:
         """The method's reward module: :attr:`reward_module_class` with the :attr:`reward_module_args` (None: none)."""
         if self.reward_module_class is None:
             return None
-        parameters = inspect.signature(self.reward_module_class).parameters
+        parameters = parameters_of(self.reward_module_class)
         kwargs = {parameter: getattr(self, name) for name, parameter in self.reward_module_args.items()}
         kwargs = {parameter: value for parameter, value in kwargs.items() if value is not None}
         if "hidden_dim" in parameters:

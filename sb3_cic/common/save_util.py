@@ -311,7 +311,7 @@ class SaveLoadMixin:
 
         if "policy_kwargs" in kwargs:  # compared with the saved ones, which are normalised
             kwargs["policy_kwargs"] = normalize_policy_kwargs(kwargs["policy_kwargs"])
-        check_ranges(kwargs)
+        check_ranges(kwargs, cls.loaded_argument_ranges())
         saved = SavedModel(read_saved_data(path, custom_objects), source=path)
         env = saved.check(cls, env)
         if is_networks_only(path):

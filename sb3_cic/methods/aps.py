@@ -11,11 +11,11 @@ from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv
 
 from sb3_cic.callbacks import SkillSelectionCallback
-from sb3_cic.common.arguments import check_ranges
+from sb3_cic.common.arguments import NON_NEGATIVE_INT, POSITIVE_INT, Flag, Range, check_ranges
 from sb3_cic.ddpg import URLBDDPG
 from sb3_cic.policies import URLBCritic, URLBPolicy
 from sb3_cic.rewards.aps import APSReward
-from sb3_cic.skills import SphereSkillPrior
+from sb3_cic.skills import SKILL_DIM, SphereSkillPrior
 
 
 class APSCritic(URLBCritic):
@@ -168,6 +168,10 @@ class APS(URLBDDPG):
     }
     finetune_skill_choices: ClassVar[dict[str, Any]] = {"regression": (APSRegressionCallback, {})}
     finetune_critic: ClassVar[str] = "trunk"
+    #: the ranges of APS's own arguments (URLBDDPG's: :attr:`~sb3_cic.ddpg.URLBDDPG.argument_ranges`)
+    argument_ranges: ClassVar[dict[str, Range | Flag]] = {
+        "sf_dim": SKILL_DIM, "regression_step": NON_NEGATIVE_INT, "regression_max_samples": POSITIVE_INT,
+    }
 
     def __init__(
         self,
@@ -181,7 +185,8 @@ class APS(URLBDDPG):
     ) -> None:
         if isinstance(policy, type) and not issubclass(policy, APSPolicy):
             raise ValueError(f"APS needs an APSPolicy (successor-feature critic), got {policy.__name__}")
-        check_ranges({"sf_dim": sf_dim, "regression_step": regression_step, "regression_max_samples": regression_max_samples})
+        check_ranges({"sf_dim": sf_dim, "regression_step": regression_step, "regression_max_samples": regression_max_samples},
+                     APS.argument_ranges)
         self.regression_step = regression_step
         self.regression_max_samples = regression_max_samples
         super().__init__(policy, env, skill_dim=sf_dim, skill_resample_every=skill_resample_every, **kwargs)

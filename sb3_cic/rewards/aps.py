@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import torch as th
 import torch.nn.functional as F
 from stable_baselines3.common.type_aliases import ReplayBufferSamples
 
+from sb3_cic.common.arguments import FLAG, NON_NEGATIVE, POSITIVE_INT, Flag, Range
 from sb3_cic.policies import orthogonal_init
 from sb3_cic.rewards.base import RewardModule, mlp
 from sb3_cic.rewards.particle import ParticleEntropy
@@ -29,6 +32,8 @@ class APSReward(RewardModule):
     :param knn_avg: average the k distances
     :param knn_rms: divide by the running mean of the distances
     """
+
+    parameter_ranges: ClassVar[dict[str, Range | Flag]] = {"knn_k": POSITIVE_INT, "knn_clip": NON_NEGATIVE, "knn_avg": FLAG, "knn_rms": FLAG}
 
     def __init__(
         self,

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, ClassVar
 
 import torch as th
 from stable_baselines3.common.type_aliases import ReplayBufferSamples
 from torch import nn
 
+from sb3_cic.common.arguments import POSITIVE, POSITIVE_INT, Flag, Range
+from sb3_cic.skills import SKILL_DIM
 from sb3_cic.speed import FusedAdam, LeanSequential
 
 
@@ -26,6 +28,9 @@ class RewardModule(nn.Module):
     """
 
     optimizer: th.optim.Optimizer
+    #: the range of each numeric (or bool) parameter: those most modules take here, a module's own in its class
+    #: (:func:`~sb3_cic.common.arguments.ranges_of` merges them); a method's argument of a parameter is checked with it
+    parameter_ranges: ClassVar[dict[str, Range | Flag]] = {"skill_dim": SKILL_DIM, "hidden_dim": POSITIVE_INT, "lr": POSITIVE}
 
     def __init__(self, state_dim: int, action_dim: int, skill_dim: int = 0, lr: float = 1e-4) -> None:
         super().__init__()

@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import math
 
 import torch as th
 import torch.nn.functional as F
 from stable_baselines3.common.type_aliases import ReplayBufferSamples
 
+from sb3_cic.common.arguments import FLAG, NON_NEGATIVE, POSITIVE, POSITIVE_INT, Flag, Range
 from sb3_cic.policies import orthogonal_init
 from sb3_cic.rewards.base import RewardModule, mlp
 from sb3_cic.rewards.particle import ParticleEntropy
@@ -57,6 +60,11 @@ class CICReward(RewardModule):
     :param knn_rms: divide by the running mean (variant "code": variance) of the distances
     :param variant: "paper" (the paper's loss and reward) or "code" (the reference code's, see above)
     """
+
+    parameter_ranges: ClassVar[dict[str, Range | Flag]] = {
+        "embed_dim": POSITIVE_INT, "temperature": POSITIVE, "knn_k": POSITIVE_INT, "knn_clip": NON_NEGATIVE,
+        "knn_avg": FLAG, "knn_rms": FLAG,
+    }
 
     def __init__(
         self,

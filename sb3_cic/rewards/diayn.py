@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import math
 
 import torch as th
 import torch.nn.functional as F
 from stable_baselines3.common.type_aliases import ReplayBufferSamples
 
+from sb3_cic.common.arguments import NON_NEGATIVE, Flag, Range
 from sb3_cic.policies import orthogonal_init
 from sb3_cic.rewards.base import RewardModule, mlp
 
@@ -26,6 +29,8 @@ class DIAYNReward(RewardModule):
     :param lr: Adam learning rate (1e-4)
     :param scale: reward scale (1)
     """
+
+    parameter_ranges: ClassVar[dict[str, Range | Flag]] = {"scale": NON_NEGATIVE}
 
     def __init__(
         self, state_dim: int, action_dim: int, skill_dim: int = 16, hidden_dim: int = 1024, lr: float = 1e-4, scale: float = 1.0

@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import math
 
 import torch as th
 from stable_baselines3.common.type_aliases import ReplayBufferSamples
 from torch import nn
 
+from sb3_cic.common.arguments import POSITIVE_INT, Flag, Range
 from sb3_cic.rewards.base import RewardModule
 
 
@@ -58,6 +61,8 @@ class DisagreementReward(RewardModule):
     :param n_models: ensemble size (5)
     :param lr: Adam learning rate (1e-4)
     """
+
+    parameter_ranges: ClassVar[dict[str, Range | Flag]] = {"n_models": POSITIVE_INT}
 
     def __init__(self, state_dim: int, action_dim: int, hidden_dim: int = 1024, n_models: int = 5, lr: float = 1e-4) -> None:
         super().__init__(state_dim, action_dim, 0, lr)

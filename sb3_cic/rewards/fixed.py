@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import torch as th
 from stable_baselines3.common.type_aliases import ReplayBufferSamples
 
+from sb3_cic.common.arguments import FINITE, Flag, Range
 from sb3_cic.rewards.base import RewardModule
 
 
@@ -25,6 +28,8 @@ class ConstantReward(RewardModule):
     :param action_dim: action size
     :param value: the reward of every step (1)
     """
+
+    parameter_ranges: ClassVar[dict[str, Range | Flag]] = {"value": FINITE}
 
     def __init__(self, state_dim: int, action_dim: int, value: float = 1.0) -> None:
         super().__init__(state_dim, action_dim, 0)

@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import torch as th
 from stable_baselines3.common.type_aliases import ReplayBufferSamples
 from torch import nn
 
+from sb3_cic.common.arguments import NON_NEGATIVE, Flag, Range
 from sb3_cic.policies import orthogonal_init
 from sb3_cic.rewards.base import RewardModule, mlp
 from sb3_cic.speed import LeanSequential
@@ -24,6 +27,8 @@ class ICMReward(RewardModule):
     :param lr: Adam learning rate (1e-4)
     :param scale: factor of the forward error inside the log (1)
     """
+
+    parameter_ranges: ClassVar[dict[str, Range | Flag]] = {"scale": NON_NEGATIVE}
 
     def __init__(self, state_dim: int, action_dim: int, hidden_dim: int = 1024, lr: float = 1e-4, scale: float = 1.0) -> None:
         super().__init__(state_dim, action_dim, 0, lr)

@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+from typing import Any, ClassVar
+
 import torch as th
 from stable_baselines3.common.type_aliases import ReplayBufferSamples
 
+from sb3_cic.common.arguments import FLAG, Flag, Range
 from sb3_cic.rewards.cic import CICReward
 from sb3_cic.skills import check_skill_mode, control_mask
 
@@ -28,45 +31,31 @@ class MOSSReward(CICReward):
     :param state_dim: state size
     :param action_dim: action size
     :param skill_dim: skill size (32)
-    :param hidden_dim: hidden width of the three networks (1024)
-    :param embed_dim: output size of the three networks (default: ``skill_dim``)
-    :param lr: Adam learning rate (1e-4)
-    :param temperature: contrastive temperature (0.5)
-    :param knn_k: neighbours of the entropy estimator (default: the variant's, 16 for "code")
-    :param knn_clip: clip of the entropy estimator (0.0005)
-    :param knn_avg: average the k distances
-    :param knn_rms: normalise the distances by their running statistics
     :param variant: CIC's loss variant ("code", MOSS's; see :class:`~sb3_cic.rewards.cic.CICReward`)
     :param minus_mean: subtract the running mean of the distances before dividing (MOSS: True)
     :param knn_source: "state" (MOSS: ``g1(s)`` against the batch's ``g1(s')``) or "next_state" (CIC)
     :param skill_mode: how a skill carries its mode, "half" or "sign" (:class:`~sb3_cic.skills.MixtureSkillPrior`)
+    :param kwargs: the other parameters of :class:`~sb3_cic.rewards.cic.CICReward`, with its defaults
+        (``hidden_dim``, ``embed_dim``, ``lr``, ``temperature``, ``knn_k``: the variant's, ``knn_clip``...)
     """
+
+    parameter_ranges: ClassVar[dict[str, Range | Flag]] = {"minus_mean": FLAG}
 
     def __init__(
         self,
         state_dim: int,
         action_dim: int,
         skill_dim: int = 32,
-        hidden_dim: int = 1024,
-        embed_dim: int | None = None,
-        lr: float = 1e-4,
-        temperature: float = 0.5,
-        knn_k: int | None = None,
-        knn_clip: float = 0.0005,
-        knn_avg: bool = True,
-        knn_rms: bool = True,
         variant: str = "code",
         minus_mean: bool = True,
         knn_source: str = "state",
         skill_mode: str = "half",
+        **kwargs: Any,
     ) -> None:
         if knn_source not in KNN_SOURCES:
             raise ValueError(f"knn_source must be one of {KNN_SOURCES}, got {knn_source!r}")
         check_skill_mode(skill_mode)
-        super().__init__(
-            state_dim, action_dim, skill_dim, hidden_dim, embed_dim, lr, temperature, knn_k, knn_clip, knn_avg, knn_rms,
-            variant,
-        )
+        super().__init__(state_dim, action_dim, skill_dim=skill_dim, variant=variant, **kwargs)
         self.particle.center = minus_mean
         self.knn_source = knn_source
         self.skill_mode = skill_mode

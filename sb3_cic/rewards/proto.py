@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import copy
 
 import torch as th
@@ -9,6 +11,7 @@ import torch.nn.functional as F
 from stable_baselines3.common.type_aliases import ReplayBufferSamples
 from torch import nn
 
+from sb3_cic.common.arguments import FRACTION, POSITIVE, POSITIVE_INT, Flag, Range
 from sb3_cic.policies import orthogonal_init
 from sb3_cic.rewards.base import RewardModule, mlp
 from sb3_cic.rewards.particle import knn_distances
@@ -59,6 +62,11 @@ class ProtoReward(RewardModule):
     :param target_tau: EMA coefficient of the target predictor (0.05)
     :param lr: Adam learning rate (1e-4)
     """
+
+    parameter_ranges: ClassVar[dict[str, Range | Flag]] = {
+        "pred_dim": POSITIVE_INT, "proj_dim": POSITIVE_INT, "num_protos": POSITIVE_INT, "queue_size": POSITIVE_INT,
+        "topk": POSITIVE_INT, "temperature": POSITIVE, "sinkhorn_iters": POSITIVE_INT, "target_tau": FRACTION,
+    }
 
     def __init__(
         self,

@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import torch as th
 from stable_baselines3.common.type_aliases import ReplayBufferSamples
 from torch import nn
 
+from sb3_cic.common.arguments import NON_NEGATIVE, POSITIVE_INT, Flag, Range
 from sb3_cic.policies import orthogonal_init
 from sb3_cic.rewards.base import RewardModule, mlp
 from sb3_cic.rewards.particle import RunningMeanStd
@@ -36,6 +39,8 @@ class RNDReward(RewardModule):
     :param clip: clip of the normalised state (5)
     :param scale: reward scale (1)
     """
+
+    parameter_ranges: ClassVar[dict[str, Range | Flag]] = {"rep_dim": POSITIVE_INT, "scale": NON_NEGATIVE}
 
     def __init__(
         self,

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import math
 
 import torch as th
@@ -9,6 +11,7 @@ import torch.nn.functional as F
 from stable_baselines3.common.type_aliases import ReplayBufferSamples
 from torch import nn
 
+from sb3_cic.common.arguments import NON_NEGATIVE, POSITIVE, POSITIVE_INT, Flag, Range
 from sb3_cic.policies import orthogonal_init
 from sb3_cic.rewards.base import RewardModule, mlp
 
@@ -76,6 +79,11 @@ class SMMReward(RewardModule):
     :param latent_ent_coef: weight of ``log K`` (1)
     :param latent_cond_ent_coef: weight of ``log q(z|s')`` (1)
     """
+
+    parameter_ranges: ClassVar[dict[str, Range | Flag]] = {
+        "vae_hidden_dim": POSITIVE_INT, "code_dim": POSITIVE_INT, "vae_lr": POSITIVE, "disc_lr": POSITIVE,
+        "vae_beta": NON_NEGATIVE,
+    }
 
     def __init__(
         self,

@@ -18,7 +18,8 @@ its row and the hash of its settings, :attr:`RunFolder.identity`; a checkpoint o
 ``replay_buffer.pkl`` (SB3's ``save_replay_buffer``) and ``state.pkl``: what SB3 does not save, namely the
 random states (Python, numpy, torch, the model's spaces), the environments' states (each env's episode
 start, the skill wrappers' schedules) and the callbacks' states
-(:class:`~sb3_cic.common.resumable.ResumableCallback`).
+(:class:`~sb3_cic.common.resumable.ResumableCallback`); those states and the callback that checkpoints a run
+(:class:`~sb3_cic.common.resumable.RunCheckpointCallback`) are the library's (:mod:`sb3_cic.common.resumable`).
 """
 
 from __future__ import annotations
@@ -27,21 +28,24 @@ import io
 import json
 import os
 import pickle
-import random
 import socket
 import time
 import zipfile
 from pathlib import Path
 from typing import Any, Sequence
 
-import numpy as np
-import torch as th
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.type_aliases import GymEnv
-from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecEnvWrapper
 
-from sb3_cic.common.resumable import ResumableCallback, env_layers, env_state, has_method, set_env_state
+from sb3_cic.common.resumable import (
+    callback_state,
+    rng_state,
+    set_callback_state,
+    set_rng_state,
+    set_vec_env_state,
+    vec_env_state,
+)
 
 #: version of the checkpoint's content
 CHECKPOINT_FORMAT = 1
@@ -240,162 +244,3 @@ class RunFolder:
             set_callback_state(callback, saved)
         set_rng_state(model, state["rng"])
         return meta
-
-
-# random states -------------------------------------------------------------------------------
-def rng_state(model: BaseAlgorithm) -> dict[str, Any]:
-    """The random states a run draws from: Python, numpy (action noise, replay sampling), torch and the model's spaces.
-
-    :param model: the model (its action space draws the warm-up's random actions)
-    """
-    return {
-        "python": random.getstate(),
-        "numpy": np.random.get_state(),
-        "torch": th.get_rng_state(),
-        "cuda": th.cuda.get_rng_state_all() if th.cuda.is_available() and th.cuda.is_initialized() else None,
-        "action_space": model.action_space.np_random.bit_generator.state,
-        "observation_space": model.observation_space.np_random.bit_generator.state,
-    }
-
-
-def set_rng_state(model: BaseAlgorithm, state: dict[str, Any]) -> None:
-    """Restore what :func:`rng_state` returned.
-
-    :param model: the model
-    :param state: the saved random states
-    """
-    random.setstate(state["python"])
-    np.random.set_state(state["numpy"])
-    th.set_rng_state(state["torch"])
-    if state["cuda"] is not None and th.cuda.is_available():
-        th.cuda.set_rng_state_all(state["cuda"])
-    model.action_space.np_random.bit_generator.state = state["action_space"]
-    model.observation_space.np_random.bit_generator.state = state["observation_space"]
-
-
-# environments --------------------------------------------------------------------------------
-def _vec_layers(venv: VecEnv) -> tuple[list[VecEnvWrapper], DummyVecEnv]:
-    wrappers = []
-    while isinstance(venv, VecEnvWrapper):
-        wrappers.append(venv)
-        venv = venv.venv
-    if not isinstance(venv, DummyVecEnv):
-        raise ValueError(f"checkpoints need the envs in this process (a DummyVecEnv), got {type(venv).__name__}")
-    return wrappers, venv
-
-
-def vec_env_state(venv: VecEnv | None) -> dict[str, Any]:
-    """The checkpoint state of a VecEnv (of its VecEnv wrappers and of each env), taken at an episode boundary.
-
-    :param venv: the model's training env (a DummyVecEnv, possibly wrapped)
-    """
-    assert venv is not None
-    wrappers, dummy = _vec_layers(venv)
-    return {
-        "wrappers": [w.get_checkpoint_state() if has_method(w, "get_checkpoint_state") else None for w in wrappers],
-        "envs": [env_state(env) for env in dummy.envs],
-    }
-
-
-def set_vec_env_state(venv: VecEnv | None, state: dict[str, Any], last_obs: np.ndarray | None = None) -> None:
-    """Restore what :func:`vec_env_state` returned.
-
-    :param venv: the VecEnv, built as the one that was saved
-    :param state: the saved state
-    :param last_obs: the model's saved last observation: each env's restored observation must start with it
-        (a ``RuntimeError`` says the episode start could not be reproduced)
-    """
-    assert venv is not None
-    wrappers, dummy = _vec_layers(venv)
-    for i, (env, saved) in enumerate(zip(dummy.envs, state["envs"], strict=True)):
-        observations = [obs for obs in set_env_state(env, saved) if isinstance(obs, np.ndarray)]
-        if last_obs is not None and observations:
-            obs = observations[0]
-            if not np.array_equal(np.asarray(last_obs[i][: obs.size], dtype=np.float32), obs.astype(np.float32)):
-                raise RuntimeError("the checkpoint's episode start could not be reproduced: the env is not the saved one")
-    for wrapper, saved in zip(wrappers, state["wrappers"], strict=True):
-        if saved is not None:
-            wrapper.set_checkpoint_state(saved)
-
-
-# callbacks -----------------------------------------------------------------------------------
-def callback_state(callback: BaseCallback) -> dict[str, Any]:
-    """The state of ``callback`` a checkpoint saves: ``n_calls``, plus the own state of a
-    :class:`~sb3_cic.common.resumable.ResumableCallback`.
-
-    :param callback: any SB3 callback
-    """
-    own = callback.get_checkpoint_state() if isinstance(callback, ResumableCallback) else {}
-    return {"class": type(callback).__name__, "n_calls": callback.n_calls, "state": own}
-
-
-def set_callback_state(callback: BaseCallback, state: dict[str, Any]) -> None:
-    """Restore what :func:`callback_state` returned (the callback must be of the same class).
-
-    :param callback: the run's callback
-    :param state: its saved state
-    """
-    if type(callback).__name__ != state["class"]:
-        raise ValueError(f"the checkpoint saved a {state['class']}, the run has a {type(callback).__name__}")
-    callback.n_calls = state["n_calls"]
-    if isinstance(callback, ResumableCallback):
-        callback.set_checkpoint_state(state["state"])
-        callback.resumed = True
-
-
-class RunCheckpointCallback(BaseCallback):
-    """Checkpoint the run every ``every`` steps, at the first episode boundary after that many steps.
-
-    The checkpoint is taken when a rollout starts (the previous rollout's updates done) right after an
-    episode ended, so a resumed run goes on exactly as the uninterrupted one would.
-
-    :param folder: the run's folder
-    :param every: steps between checkpoints (0: none)
-    :param callbacks: the run's other callbacks, whose state is saved
-    :param elapsed_s: training time of the run before this ``learn`` call (a resumed run's)
-    :param verbose: verbosity
-    """
-
-    def __init__(
-        self, folder: RunFolder, every: int, callbacks: Sequence[BaseCallback], elapsed_s: float = 0.0, verbose: int = 0
-    ) -> None:
-        super().__init__(verbose)
-        if not isinstance(every, (int, np.integer)) or every < 0:
-            raise ValueError(f"the checkpoint period must be an int >= 0, got {every!r}")
-        self.folder = folder
-        self.every = int(every)
-        self.callbacks = list(callbacks)
-        self.elapsed_s = elapsed_s
-        #: (step, seconds, bytes) of each checkpoint written
-        self.written: list[tuple[int, float, int]] = []
-
-    def _init_callback(self) -> None:
-        if self.every:  # a ValueError now rather than at the first checkpoint
-            _, dummy = _vec_layers(self.model.get_env())
-            for env in dummy.envs:
-                if not any(has_method(layer, "get_checkpoint_state") for layer in env_layers(env)):
-                    raise ValueError(
-                        f"{env} cannot checkpoint its episode start (no get_checkpoint_state, as URLB's DMCEnv has): "
-                        "use checkpoint_every=0"
-                    )
-        self._last = self.num_timesteps
-        self._start = time.perf_counter()
-
-    def elapsed(self) -> float:
-        """Training seconds of the run so far (including the time before a resume)."""
-        return self.elapsed_s + time.perf_counter() - self._start
-
-    def _on_rollout_start(self) -> None:
-        if not self.every or self.num_timesteps - self._last < self.every:
-            return
-        if not np.all(self.model._last_episode_starts):
-            return
-        start = time.perf_counter()
-        size = self.folder.save_checkpoint(self.model, self.callbacks, {"elapsed_s": self.elapsed()})
-        self.written.append((self.num_timesteps, time.perf_counter() - start, size))
-        self._last = self.num_timesteps
-        if self.verbose:
-            print(f"Checkpoint at step {self.num_timesteps}: {self.folder.checkpoint} ({size / 1e6:.1f} MB)")
-
-    def _on_step(self) -> bool:
-        return True

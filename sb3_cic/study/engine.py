@@ -1,4 +1,5 @@
-"""The engine: a study's job graph as Ray tasks.
+"""The engine: a study's job graph as Ray tasks (:class:`RayExecutor`, the executor of ``sb3-cic study`` for the
+driver, :mod:`sb3_cic.study.driver`).
 
 Each run is one Ray task with its resources (``num_cpus``, ``num_gpus``: ``0.25`` puts four runs on a GPU)
 and ``max_retries`` (Ray starts it again when its worker dies; the run resumes from its checkpoint). A
@@ -14,6 +15,7 @@ it writes in the folder afterwards, and the same command resumes the study.
 from __future__ import annotations
 
 import dataclasses
+from dataclasses import dataclass
 import math
 import os
 import signal
@@ -25,31 +27,31 @@ from typing import Any, Sequence
 
 from tqdm.auto import tqdm
 
-from sb3_cic import protocol
-from sb3_cic.common.arguments import check_argument
-from sb3_cic.protocol import Settings, check_study_settings, record_study_settings, run_record
+from sb3_cic.common.arguments import NON_NEGATIVE_INT, check_argument
+from sb3_cic.protocol import finetune, pretrain
 from sb3_cic.study.checkpoint import RunFolder, process_start_time
-from sb3_cic.study.graph import Run, alive, build_graph, check_study, record_runs, settings_use
-from sb3_cic.study.record import Pairing, StudyLock, check_resume_settings, check_run_settings, resolve_pairing
+from sb3_cic.study.driver import StudyPlan, drive, plan_study
+from sb3_cic.study.graph import alive
+from sb3_cic.study.run import Run
+from sb3_cic.study.settings import Settings
 
 
-def execute(study: str, run: Run, settings: Settings, dependency: dict[str, Any] | None = None) -> dict[str, Any]:
+def execute(
+    study: str, run: Run, settings: Settings, dependency: dict[str, Any] | None = None, config: str | None = None
+) -> dict[str, Any]:
     """Run ``run`` in this process (the body of a Ray task); record a failure in its folder instead of raising.
 
     :param study: study folder (absolute: workers may have another working directory)
     :param run: the run
     :param settings: the study's settings
     :param dependency: the status its pre-training's task returned (a failed one fails this run too)
+    :param config: the yaml of the run's method (None: the default)
     :return: ``{"run": str(run), "state": "done" | "failed", "error": ...}``
     """
     try:
         if dependency is not None and dependency["state"] != "done":
             raise RuntimeError(f"its pre-training failed: {dependency['error']}")
-        if run.task is None:
-            protocol.pretrain(study, run.method, run.domain, settings, seed=run.seed, paired=not run.shared)
-        else:
-            protocol.finetune(study, run.method, run.domain, run.task, run.seed, settings, snapshot=run.snapshot,
-                              from_scratch=run.from_scratch, paired=not run.shared)
+        (pretrain if run.task is None else finetune)(study, run, settings, config)
     except Exception as error:  # recorded; the study goes on
         return failed(study, run, f"{type(error).__name__}: {error}", traceback.format_exc())
     return {"run": str(run), "state": "done", "error": None}
@@ -70,44 +72,34 @@ def failed(study: str | Path, run: Run, error: str, details: str) -> dict[str, A
     return {"run": str(run), "state": "failed", "error": error}
 
 
-def run_graph(
-    study: str | Path,
-    runs: Sequence[Run],
-    settings: Settings,
-    cpus_per_run: float = 1,
-    gpus_per_run: float = 0,
-    max_retries: int = 3,
-    progress_bar: bool = True,
-) -> list[dict[str, Any]]:
-    """Run ``runs`` (pre-trainings before their fine-tunings, as :func:`~sb3_cic.study.graph.build_graph` orders
-    them) as Ray tasks on the Ray instance this process is connected to; return each run's status.
+def run_graph(plan: StudyPlan, executor: RayExecutor) -> list[dict[str, Any]]:
+    """Run the plan's runs still to do (pre-trainings before their fine-tunings, as
+    :func:`~sb3_cic.study.graph.build_graph` orders them) as Ray tasks on the Ray instance this process is connected
+    to, with the executor's resources; return each run's status.
 
     Interrupted (:class:`KeyboardInterrupt`), it cancels the runs' tasks, killing their workers, and raises.
 
-    :param study: study folder (on a cluster: storage that every node sees)
-    :param runs: the runs still to do
-    :param settings: the study's settings (``num_threads`` None: ``cpus_per_run`` torch threads per run)
-    :param cpus_per_run: CPUs of a run's task
-    :param gpus_per_run: GPUs of a run's task (a fraction shares a GPU)
-    :param max_retries: times Ray starts a run again after its worker died
-    :param progress_bar: show a progress bar over the runs
+    :param plan: the checked runs (:func:`~sb3_cic.study.driver.plan_study`; the study folder, on a cluster, on
+        storage that every node sees)
+    :param executor: the resources of a run's task
     """
     import ray
 
-    study = str(Path(study).resolve())
-    if settings.num_threads is None:
-        settings = dataclasses.replace(settings, num_threads=max(1, int(cpus_per_run)))
-    settings = dataclasses.replace(settings, progress_bar=False)
-    task = ray.remote(execute).options(num_cpus=cpus_per_run, num_gpus=gpus_per_run, max_retries=max_retries)
+    study = str(Path(plan.study).resolve())
+    settings = executor.run_settings(plan.settings)
+    task = ray.remote(execute).options(num_cpus=executor.cpus_per_run, num_gpus=executor.gpus_per_run,
+                                       max_retries=executor.max_retries)
     refs: dict[Run, Any] = {}
-    for run in runs:
+    for run in plan.todo:
         dependency = run.dependency()
-        refs[run] = task.remote(study, run, settings, refs.get(dependency) if dependency else None)
+        config = plan.config(run)  # absolute, as the study folder: a worker may have another working directory
+        refs[run] = task.remote(study, run, settings, refs.get(dependency) if dependency else None,
+                                None if config is None else str(Path(config).resolve()))
     names = {ref: run for run, ref in refs.items()}
     statuses = []
     pending = list(refs.values())
     try:
-        with tqdm(total=len(pending), desc="runs", unit="run", disable=not progress_bar) as bar:
+        with tqdm(total=len(pending), desc="runs", unit="run", disable=not executor.progress_bar) as bar:
             while pending:
                 ready, pending = ray.wait(pending, num_returns=1)
                 for ref in ready:
@@ -200,6 +192,66 @@ def start_ray(
         signal.signal(signal.SIGTERM, sigterm)
 
 
+@dataclass
+class RayExecutor:
+    """Run a study's runs as Ray tasks (``sb3-cic study``): each run one task with its resources and ``max_retries``;
+    a run that fails is recorded in its folder and the others go on (:func:`run_graph`). Without ``address`` and
+    without a Ray instance in this process, a local one is started (and stopped). Interrupted
+    (:class:`KeyboardInterrupt`), the runs are stopped (:func:`stop_runs`) before it raises.
+
+    :param address: address of a running Ray cluster
+    :param workers: runs at a time of a local Ray instance
+    :param cpus_per_run: CPUs of each run
+    :param gpus_per_run: GPUs of each run (a fraction shares a GPU)
+    :param max_retries: times Ray starts a run again after its worker died
+    :param progress_bar: show a progress bar over the runs
+    """
+
+    address: str | None = None
+    workers: int = 1
+    cpus_per_run: float = 1
+    gpus_per_run: float = 0
+    max_retries: int = 3
+    progress_bar: bool = True
+
+    def __post_init__(self) -> None:
+        """A ``ValueError`` for bad resources."""
+        if not isinstance(self.workers, int) or self.workers < 1:
+            raise ValueError(f"workers must be an int >= 1, got {self.workers!r}")
+        if not self.cpus_per_run > 0 or not self.gpus_per_run >= 0:
+            raise ValueError(f"cpus_per_run must be > 0 and gpus_per_run >= 0, got {self.cpus_per_run!r} and "
+                             f"{self.gpus_per_run!r}")
+        check_argument("max_retries", self.max_retries, NON_NEGATIVE_INT)  # no -1 (Ray's "no limit"): a run that kills its worker never ends
+
+    def run_settings(self, settings: Settings) -> Settings:
+        """The settings of a run's task: ``num_threads`` None is ``cpus_per_run`` torch threads, no progress bar."""
+        if settings.num_threads is None:
+            settings = dataclasses.replace(settings, num_threads=max(1, int(self.cpus_per_run)))
+        return dataclasses.replace(settings, progress_bar=False)
+
+    def run(self, plan: StudyPlan) -> list[dict[str, Any]]:
+        """Run the plan's runs still to do on Ray; return their statuses."""
+        import ray
+
+        if not plan.todo:
+            return []
+        announce_resumed(plan.study, plan.todo)
+        started, since = not ray.is_initialized(), time.time()
+        if started:
+            start_ray(self.address, self.workers, self.cpus_per_run, self.gpus_per_run,
+                      log_to_driver=plan.settings.verbose > 0)
+        try:
+            return run_graph(plan, self)
+        except KeyboardInterrupt:
+            if started:
+                ray.shutdown()
+            stop_runs(plan.study, plan.todo, since)
+            raise
+        finally:
+            if started and ray.is_initialized():
+                ray.shutdown()
+
+
 def run_study(
     study: str | Path,
     methods: Sequence[str],
@@ -216,14 +268,11 @@ def run_study(
     progress_bar: bool = True,
     from_snapshot: int | None = None,
     pairing: str | None = None,
+    conf_files: dict[str, str | Path | None] | None = None,
 ) -> tuple[list[Run], list[dict[str, Any]]]:
-    """``sb3-cic study``: build the job graph, check it against the study folder, run what is left on Ray.
-
-    Every bad input (unknown method, domain or task, a folder or a run folder made with other settings, another
-    pairing, a damaged ``study.json``, ``result.json`` or ``eval.csv``, a corrupt or lost checkpoint, a missing
-    snapshot, bad resources, another command driving the folder) is a ``ValueError`` before anything is written or
-    run. Without ``address`` and without a Ray instance in this process, a local one is started (and stopped).
-    Interrupted (:class:`KeyboardInterrupt`), the runs are stopped (:func:`stop_runs`) before it raises.
+    """``sb3-cic study``: the study's runs, checked (:func:`~sb3_cic.study.driver.plan_study`: every bad input, bad
+    resources too, is a ``ValueError`` before anything is written or run), recorded and run on Ray
+    (:class:`RayExecutor`, :func:`~sb3_cic.study.driver.drive`).
 
     :param study: study folder
     :param methods: rl-zoo names or ``["all"]``
@@ -238,50 +287,17 @@ def run_study(
     :param gpus_per_run: GPUs of each run (a fraction shares a GPU)
     :param max_retries: times Ray starts a run again after its worker died
     :param progress_bar: show a progress bar over the runs
-    :param from_snapshot: fine-tune from the pre-training's snapshot at this step (one of ``settings.snapshots``;
-        None: the final one); the runs are ``cic@<step>`` in the study's folders and reports
+    :param from_snapshot: fine-tune from the pre-training's snapshot at this step (one it saves; None or the final
+        step: the final one); the runs are ``cic@<step>`` in the study's folders and reports
     :param pairing: ``paired``, ``shared`` or None: the study's (a new study: ``paired``;
         :func:`~sb3_cic.study.record.resolve_pairing`)
+    :param conf_files: the yaml of each method (``--conf-file``; None: the default ``zoo_configs/<method>.yml``)
     :return: the command's runs and the statuses of those that ran now
     """
-    import ray
-
-    if not isinstance(workers, int) or workers < 1:
-        raise ValueError(f"workers must be an int >= 1, got {workers!r}")
-    if not cpus_per_run > 0 or not gpus_per_run >= 0:
-        raise ValueError(f"cpus_per_run must be > 0 and gpus_per_run >= 0, got {cpus_per_run!r} and {gpus_per_run!r}")
-    check_argument("max_retries", max_retries)  # no -1 (Ray's "no limit"): a run that kills its worker would never end
-    if from_snapshot is not None and (from_snapshot not in settings.snapshots or from_snapshot == settings.pretrain_steps):
-        raise ValueError(f"fine-tuning from the snapshot at {from_snapshot} steps needs it among the intermediate "
-                         f"snapshots (--snapshots {' '.join(map(str, settings.snapshots))}); the final one is the default")
-    chosen = resolve_pairing(study, pairing, pretrain_seed)
-    runs = build_graph(methods, domains, tasks, seeds, chosen, from_snapshot)
-    protocol.check_learning_starts(runs, settings)
-    check_study_settings(study, settings, chosen, **settings_use(runs))
-    check_runs_settings(study, runs, settings, chosen)
-    todo = check_study(study, runs)
-    check_resumes(study, todo, settings, chosen, cpus_per_run)
-    with StudyLock(study):
-        record_study_settings(study, settings, chosen, **settings_use(runs))
-        record_runs(study, runs)
-        for run in runs:  # a done run killed just after writing its result.json: what it left is deleted
-            RunFolder(run.folder(study)).clean()
-        if not todo:
-            return runs, []
-        announce_resumed(study, todo)
-        started, since = not ray.is_initialized(), time.time()
-        if started:
-            start_ray(address, workers, cpus_per_run, gpus_per_run, log_to_driver=settings.verbose > 0)
-        try:
-            return runs, run_graph(study, todo, settings, cpus_per_run, gpus_per_run, max_retries, progress_bar)
-        except KeyboardInterrupt:
-            if started:
-                ray.shutdown()
-            stop_runs(study, todo, since)
-            raise
-        finally:
-            if started and ray.is_initialized():
-                ray.shutdown()
+    executor = RayExecutor(address, workers, cpus_per_run, gpus_per_run, max_retries, progress_bar)
+    plan = plan_study(study, methods, domains, tasks, seeds, settings, executor, pairing=pairing,
+                      pretrain_seed=pretrain_seed, from_snapshot=from_snapshot, conf_files=conf_files)
+    return plan.runs, drive(plan, executor)
 
 
 def announce_resumed(study: str | Path, runs: Sequence[Run]) -> None:
@@ -295,34 +311,3 @@ def announce_resumed(study: str | Path, runs: Sequence[Run]) -> None:
         step = (RunFolder(run.folder(study)).read_progress() or {}).get("checkpoint_step")
         if step:
             print(f"{run}: resumes from its checkpoint at step {step:,}", flush=True)
-
-
-def check_runs_settings(study: str | Path, runs: Sequence[Run], settings: Settings, pairing: Pairing) -> None:
-    """``ValueError`` (one line) if a run folder of ``runs`` records other settings than the command's
-    (:func:`~sb3_cic.study.record.check_run_settings`; the default yaml of each method).
-
-    :param study: study folder
-    :param runs: the command's runs
-    :param settings: the command's settings
-    :param pairing: the command's pairing
-    """
-    for run in runs:
-        check_run_settings(run.folder(study), run_record(run.row(), settings, run.from_scratch, pairing))
-
-
-def check_resumes(study: str | Path, runs: Sequence[Run], settings: Settings, pairing: Pairing, cpus_per_run: float) -> None:
-    """``ValueError`` (one line) if a run of ``runs`` that will resume from its checkpoint was started with other run
-    settings (threads, compile, TF32, device) than its Ray task will have
-    (:func:`~sb3_cic.study.record.check_resume_settings`; ``num_threads`` None: ``cpus_per_run``, as :func:`run_graph`).
-
-    :param study: study folder
-    :param runs: the runs still to do
-    :param settings: the command's settings
-    :param pairing: the command's pairing
-    :param cpus_per_run: CPUs of a run's task
-    """
-    if settings.num_threads is None:
-        settings = dataclasses.replace(settings, num_threads=max(1, int(cpus_per_run)))
-    for run in runs:
-        if RunFolder(run.folder(study)).checkpoint.exists():
-            check_resume_settings(run.folder(study), run_record(run.row(), settings, run.from_scratch, pairing))

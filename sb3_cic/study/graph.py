@@ -103,13 +103,15 @@ def build_graph(
     return runs
 
 
-def settings_use(runs: Sequence[Run]) -> dict[str, Any]:
-    """What a command's runs use, as :func:`~sb3_cic.protocol.check_study_settings` takes it: whether they pre-train
-    (``pretrained``) and the yaml of each method (``configs``: the default ``zoo_configs/<method>.yml``).
+def settings_use(runs: Sequence[Run], configs: dict[str, str | None] | None = None) -> dict[str, Any]:
+    """What a command's runs use, as :func:`~sb3_cic.study.settings_record.check_study_settings` takes it: whether they
+    pre-train (``pretrained``) and the yaml of each method (``configs``).
 
     :param runs: the command's runs (:func:`build_graph`)
+    :param configs: the yaml of each method (missing or None: the default ``zoo_configs/<method>.yml``)
     """
-    return {"pretrained": any(run.task is None for run in runs), "configs": {run.method: None for run in runs}}
+    configs = configs or {}
+    return {"pretrained": any(run.task is None for run in runs), "configs": {run.method: configs.get(run.method) for run in runs}}
 
 
 def check_study(study: str | Path, runs: Sequence[Run]) -> list[Run]:
@@ -118,7 +120,7 @@ def check_study(study: str | Path, runs: Sequence[Run]) -> list[Run]:
     ``ValueError`` (one line) when a finished run's ``result.json`` or ``eval.csv`` is damaged or disagree
     (:func:`~sb3_cic.study.run_result.read_run_result`), when an unfinished run has a corrupt checkpoint or has lost one,
     or when a pre-training lacks a snapshot that a fine-tuning still to do needs (the settings: see
-    :func:`~sb3_cic.protocol.check_study_settings` and :func:`~sb3_cic.study.record.check_run_settings`). Writes
+    :func:`~sb3_cic.study.settings_record.check_study_settings` and :func:`~sb3_cic.study.record.check_run_settings`). Writes
     nothing.
 
     :param study: study folder
@@ -145,7 +147,7 @@ def check_study(study: str | Path, runs: Sequence[Run]) -> list[Run]:
 
 
 def record_runs(study: str | Path, runs: Sequence[Run]) -> None:
-    """Add ``runs`` to the runs listed in ``study.json`` (which :func:`~sb3_cic.protocol.record_study_settings`
+    """Add ``runs`` to the runs listed in ``study.json`` (which :func:`~sb3_cic.study.settings_record.record_study_settings`
     wrote), for ``sb3-cic status``.
 
     :param study: study folder

@@ -170,7 +170,7 @@ def run_settings_of(folder: str | Path) -> dict[str, Any] | None:
 
 def changed_entries(recorded: dict[str, Any] | None, current: dict[str, Any], where: str) -> list[str]:
     """The entries (environment ids) of a method's yaml whose content differs between what a study or run recorded
-    (:func:`sb3_cic.protocol.conf_file_record`) and the yaml a command reads now; entries only one of them has are
+    (:func:`sb3_cic.study.settings_record.conf_file_record`) and the yaml a command reads now; entries only one of them has are
     not compared (a new environment changes no run), nor are comments.
 
     A record made before entries were recorded holds only the sha256 of the whole file. When that file was the
@@ -202,7 +202,7 @@ def check_run_settings(folder: str | Path, record: dict[str, Any]) -> None:
     it with (its settings and its yaml's sha256: ``settings.json``). A folder that records none is not checked.
 
     :param folder: the run folder
-    :param record: what :func:`sb3_cic.protocol.run_record` returns for the command's run
+    :param record: what :func:`sb3_cic.study.settings_record.run_record` returns for the command's run
     """
     recorded = run_settings_of(folder)
     if recorded is None:
@@ -219,11 +219,11 @@ def check_run_settings(folder: str | Path, record: dict[str, Any]) -> None:
 
 def check_resume_settings(folder: str | Path, record: dict[str, Any]) -> None:
     """``ValueError`` (one line) if a run about to resume from its checkpoint was started with other run settings
-    (threads, ``compile_update``, TF32, device: :func:`sb3_cic.protocol.run_settings`) than the command's: the two
+    (threads, ``compile_update``, TF32, device: :func:`sb3_cic.study.settings_record.run_settings`) than the command's: the two
     halves of one run would be made differently. A run folder that records none is not checked.
 
     :param folder: the run folder
-    :param record: what :func:`sb3_cic.protocol.run_record` returns for the command's run
+    :param record: what :func:`sb3_cic.study.settings_record.run_record` returns for the command's run
     """
     recorded = (run_settings_of(folder) or {}).get("run_settings")
     if not recorded:
@@ -240,7 +240,7 @@ def write_run_settings(folder: str | Path, record: dict[str, Any], overwrite: bo
     """Record in the run folder the settings it is made with (once: a resumed run keeps its record).
 
     :param folder: the run folder
-    :param record: :func:`sb3_cic.protocol.run_record`
+    :param record: :func:`sb3_cic.study.settings_record.run_record`
     :param overwrite: write it anew (a run that starts from step 0: its record is that of the process that runs it)
     """
     path = Path(folder) / RUN_SETTINGS
