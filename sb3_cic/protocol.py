@@ -31,7 +31,7 @@ from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.utils import set_random_seed
 
 from sb3_cic import zoo
-from sb3_cic.callbacks import SkillGridSweepCallback, URLBEvalCallback
+from sb3_cic.callbacks import SkillGridSweepCallback, SkillSelectionCallback, URLBEvalCallback
 from sb3_cic.common.fast_update import enable_tf32
 from sb3_cic.common.progress import close_progress, progress_callback
 from sb3_cic.common.resumable import RunCheckpointCallback
@@ -66,6 +66,10 @@ class FinetuneResult:
     finetune_skill: list[float] | None
     #: the grid sweep's (candidate c, window return) pairs, when the skill was chosen by a sweep
     skill_sweep: list[list[float]] | None
+    #: how the skill was chosen (the model's ``finetune_skill_choice``: ``sweep``, ``fixed``...; None: no skill)
+    finetune_skill_choice: str | None = None
+    #: the CIC variant of the pre-training (``paper`` or ``code``; None: a method without one)
+    cic_variant: str | None = None
     #: the step of the checkpoint the run resumed from (0: it ran uninterrupted)
     resumed_from_step: int = 0
     #: the seed of the pre-training it started from (None: from scratch)
@@ -322,6 +326,9 @@ def build_finetune_model(
     overrides = zoo.zoo_overrides(config, env_id, overrides, drop_eval=True)
     hyperparams, callbacks, n_timesteps, _ = zoo.zoo_hyperparams(run.method, env_id, config, overrides)
     hyperparams.pop("env_wrapper", None)
+    if run.skill_choice is not None:  # the run's choice instead of the yaml's (its selection callback added below)
+        hyperparams["finetune_skill_choice"] = run.skill_choice
+        callbacks = [callback for callback in callbacks if not isinstance(callback, SkillSelectionCallback)]
     steps = int(settings.finetune_steps or n_timesteps)
     common = model_kwargs(study, settings)
     set_random_seed(run.seed)
@@ -382,6 +389,8 @@ def write_finetune_files(
         n_evaluations=len(evaluation.history),
         finetune_skill=None if skill is None else [float(v) for v in np.asarray(skill)],
         skill_sweep=None if sweep is None else [[float(np.mean(z)), float(ret)] for z, ret in sweep],
+        finetune_skill_choice=None if skill is None else model.finetune_skill_choice,
+        cic_variant=getattr(model, "cic_variant", None),
         resumed_from_step=start.step,
         pretrain_seed=None if pre is None else int(pre["seed"]),
         snapshot_sha256=origin.snapshot_sha256,

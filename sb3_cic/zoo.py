@@ -47,9 +47,14 @@ SMALL_HYPERPARAMS: dict[str, Any] = {
 BASELINES_BY_NAME_ONLY: tuple[str, ...] = ("fixed",)
 
 
+#: rl-zoo names of a method's variant, each with its own yaml (``zoo_configs/<name>.yml``): ``{name: class name}``
+VARIANTS: dict[str, str] = {"cic_code": "CIC"}
+
+
 def algorithms() -> dict[str, type[URLBDDPG]]:
-    """The algorithms of this package by rl-zoo name: ``ddpg``/``urlbddpg`` (:class:`URLBDDPG`) and
-    every :class:`URLBDDPG` subclass of ``sb3_cic.methods.__all__``, lower-cased (``cic``, ``icm``...)."""
+    """The algorithms of this package by rl-zoo name: ``ddpg``/``urlbddpg`` (:class:`URLBDDPG`), every
+    :class:`URLBDDPG` subclass of ``sb3_cic.methods.__all__``, lower-cased (``cic``, ``icm``...), and the
+    :data:`VARIANTS` (``cic_code``: CIC as the reference code runs it)."""
     import sb3_cic.methods as methods
 
     algos: dict[str, type[URLBDDPG]] = {"ddpg": URLBDDPG, "urlbddpg": URLBDDPG}
@@ -57,6 +62,7 @@ def algorithms() -> dict[str, type[URLBDDPG]]:
         cls = getattr(methods, name)
         if isinstance(cls, type) and issubclass(cls, URLBDDPG):
             algos[name.lower()] = cls
+    algos.update({name: getattr(methods, cls_name) for name, cls_name in VARIANTS.items()})
     return algos
 
 

@@ -117,7 +117,7 @@ def test_entry_point_prints_one_line(tmp_path: Path):
     assert process.returncode == 2
     assert process.stderr.strip().splitlines() == [
         "sb3-cic protocol: error: unknown algorithm 'cicc'; known: "
-        "['aps', 'apt', 'cic', 'ddpg', 'diayn', 'disagreement', 'fixed', 'icm', 'moss', 'protorl', 'rnd', 'smm', 'urlbddpg']"
+        "['aps', 'apt', 'cic', 'cic_code', 'ddpg', 'diayn', 'disagreement', 'fixed', 'icm', 'moss', 'protorl', 'rnd', 'smm', 'urlbddpg']"
     ]
     assert list(tmp_path.iterdir()) == []
 

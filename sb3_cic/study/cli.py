@@ -66,7 +66,7 @@ def protocol_parser() -> argparse.ArgumentParser:
         "sb3-cic protocol",
         "URLB protocol: pre-train once on URLB/<domain>-v0, fine-tune on the domain's tasks over seeds.",
     )
-    parser.add_argument("--method", "--algo", default="cic", help="cic, icm, ..., or ddpg (from scratch)")
+    parser.add_argument("--method", "--algo", default="cic", help="cic, icm, ..., or ddpg (from scratch); cic+fixed: fine-tuned with the method's skill choice fixed")
     parser.add_argument("--domain", default="walker", choices=sorted(DOMAIN_TASKS), help="URLB domain")
     parser.add_argument("--study", default="runs/urlb", help="study folder")
     parser.add_argument("--tasks", nargs="+", default=None, help="tasks (default: all of the domain)")
@@ -89,7 +89,8 @@ def build_parser() -> argparse.ArgumentParser:
         "each run a Ray task, resumed from its last checkpoint when started again.",
     )
     parser.add_argument("study", help="study folder (on a cluster: storage every node sees)")
-    parser.add_argument("--methods", nargs="+", default=["all"], help="cic apt ... ddpg, or all")
+    parser.add_argument("--methods", nargs="+", default=["all"], help="cic apt ... ddpg, or all; cic+fixed, cic+sweep: fine-tuned with that skill choice of the method "
+                        "(one pre-training serves both)")
     parser.add_argument("--domains", nargs="+", default=["all"], help="walker quadruped jaco, or all")
     parser.add_argument("--tasks", nargs="+", default=None, help="tasks (flip or walker_flip; default: each domain's)")
     parser.add_argument("--seeds", nargs="+", type=option_type(OPTION_RANGES["seeds"]), default=list(range(10)), help="fine-tuning seeds")
@@ -126,7 +127,7 @@ def conf_files_of(values: list[str] | None, methods: list[str]) -> dict[str, str
             if len(methods) != 1 or methods == ["all"] or len(values or ()) != 1:
                 raise ValueError(f"--conf-file {value}: give METHOD=FILE for each method's yaml when --methods names "
                                  "several (or all)")
-            method, path = methods[0], value
+            method, path = methods[0].partition("+")[0], value  # cic+fixed: cic's yaml
         method = method.lower()
         if method in out:
             raise ValueError(f"--conf-file names {method} twice")

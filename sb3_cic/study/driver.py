@@ -22,7 +22,7 @@ from typing import Any, Protocol, Sequence
 from sb3_cic import zoo
 from sb3_cic.protocol import finetune, pretrain
 from sb3_cic.study.checkpoint import RunFolder
-from sb3_cic.study.graph import build_graph, check_study, record_runs, settings_use
+from sb3_cic.study.graph import build_graph, check_study, record_runs, settings_use, skill_choice_of
 from sb3_cic.study.layout import task_env_id
 from sb3_cic.study.record import Pairing, StudyLock, check_resume_settings, check_run_settings, resolve_pairing
 from sb3_cic.study.run import Run
@@ -233,7 +233,8 @@ def run_protocol(
     are not run again, so an interrupted study resumes.
 
     :param study: study folder
-    :param method: rl-zoo name of the method (``ddpg`` trains from scratch)
+    :param method: rl-zoo name of the method (``ddpg`` trains from scratch; ``cic+fixed``: with the method's
+        fine-tuning skill choice ``fixed``, :func:`~sb3_cic.study.graph.build_graph`)
     :param domain: URLB domain
     :param tasks: tasks (``flip`` or ``walker_flip``; default: all of the domain)
     :param seeds: fine-tuning seeds
@@ -246,12 +247,13 @@ def run_protocol(
     :return: the fine-tuning results
     """
     method = method.lower()
-    pretrains = zoo.has_reward_module(zoo.get_algo(method))
+    name, _ = skill_choice_of(method)
+    pretrains = zoo.has_reward_module(zoo.get_algo(name))
     if from_scratch is not None and from_scratch == pretrains:
         raise ValueError(f"--from-scratch: {method} pre-trains (its runs from scratch would take the folders of its "
                          "fine-tunings); the runs from scratch are ddpg's" if pretrains
                          else f"{method} has no pre-training: its runs are from scratch")
     executor = InProcess()
     plan = plan_study(study, [method], [domain], tasks, seeds, settings or Settings(), executor, pairing=pairing,
-                      pretrain_seed=pretrain_seed, from_snapshot=snapshot, conf_files={method: config})
+                      pretrain_seed=pretrain_seed, from_snapshot=snapshot, conf_files={name: config})
     return drive(plan, executor)

@@ -53,7 +53,8 @@ def build_graph(
 
     ``ValueError`` for an unknown method, domain or task, a task of none of the domains, or bad seeds.
 
-    :param methods: rl-zoo names, or ``["all"]``
+    :param methods: rl-zoo names, or ``["all"]``; ``<name>+<choice>`` fine-tunes with the method's skill choice
+        ``<choice>`` (``cic+fixed``: the skill fixed at 0.5; labels of one method share its pre-trainings)
     :param domains: URLB domains, or ``["all"]``
     :param tasks: tasks (``flip`` or ``walker_flip``: a short name applies to every domain that has it); None:
         each domain's tasks
@@ -66,8 +67,7 @@ def build_graph(
     pairing = Pairing("shared", pairing) if isinstance(pairing, int) else pairing
     methods = all_methods() if list(methods) == ["all"] else [m.lower() for m in methods]
     domains = list(URLB_DOMAINS) if list(domains) == ["all"] else list(domains)
-    for method in methods:
-        zoo.get_algo(method)  # a ValueError names the known ones
+    choices = {method: skill_choice_of(method) for method in methods}
     for domain in domains:
         if domain not in DOMAIN_TASKS:
             raise ValueError(f"unknown domain {domain!r}; known: {sorted(DOMAIN_TASKS)}")
@@ -92,15 +92,28 @@ def build_graph(
             names = task_names[domain] if tasks else [task_name(domain, t) for t in DOMAIN_TASKS[domain]]
             if not names:
                 continue
-            rows = [[method, domain, name, seed, from_snapshot] for name in names for seed in seeds]
+            base, choice = choices[method]
+            rows = [[base, domain, name, seed, from_snapshot, choice] for name in names for seed in seeds]
             finetunes = [Run.of_row(row, pairing) for row in rows]
             if finetunes[0].from_scratch:
-                finetunes = [Run(method, domain, name, seed) for name in names for seed in seeds]
-            else:
-                runs.extend(Run.of_row([method, domain, None, s, None], pairing)
-                            for s in sorted({pairing.pretrain_seed(seed) for seed in seeds}))
+                finetunes = [Run(base, domain, name, seed) for name in names for seed in seeds]
+            else:  # a pre-training once, when several labels of its method fine-tune from it
+                pretrainings = (Run.of_row([base, domain, None, s, None], pairing)
+                                for s in sorted({pairing.pretrain_seed(seed) for seed in seeds}))
+                runs.extend(run for run in pretrainings if run not in runs)
             runs.extend(finetunes)
     return runs
+
+
+def skill_choice_of(method: str) -> tuple[str, str | None]:
+    """``(rl-zoo name, skill choice)`` of a ``--methods`` entry: ``cic`` -> ``("cic", None)``, ``cic+fixed`` ->
+    ``("cic", "fixed")``; ``ValueError`` for an unknown method or a choice the method does not have."""
+    name, plus, choice = method.partition("+")
+    known = getattr(zoo.get_algo(name), "finetune_skill_choices", {})  # get_algo: a ValueError names the known ones
+    if plus and choice not in known:
+        raise ValueError(f"{method}: {name} fine-tunes with one of the skill choices {sorted(known)}" if known
+                         else f"{method}: {name} fine-tunes without a skill to choose")
+    return name, choice or None
 
 
 def settings_use(runs: Sequence[Run], configs: dict[str, str | None] | None = None) -> dict[str, Any]:
@@ -155,7 +168,7 @@ def record_runs(study: str | Path, runs: Sequence[Run]) -> None:
     """
     path = study_file(study)
     data = json.loads(path.read_text())
-    listed = {tuple(Run(*run).row()) for run in data.get("runs", [])}  # rows of 4 (before snapshot) or 5
+    listed = {tuple(Run.of_row(run, None).row()) for run in data.get("runs", [])}  # rows of 4 (before snapshot) to 6
     listed |= {tuple(run.row()) for run in runs}
     data["runs"] = [list(r) for r in sorted(listed, key=lambda r: (r[0], r[1], r[2] or "", r[3], r[4] or 0))]
     write_json(path, data)

@@ -17,7 +17,8 @@ seed-0 pre-training, and ``<method>_<domain>_seed<s>`` for the others.
 
 Each run folder records the settings it was made with (``settings.json``); while the run is unfinished it holds
 ``checkpoint.zip`` and ``progress.json`` (``error.txt`` if it raised; :class:`~sb3_cic.study.checkpoint.RunFolder`). ``<label>`` is the method name when fine-tuning from the
-final snapshot, ``<method>@<steps>`` from another snapshot (:func:`run_label`); ``<task>`` is the URLB task name
+final snapshot, ``<method>@<steps>`` from another snapshot, ``<method>+<choice>`` with another fine-tuning skill
+choice (:func:`run_label`); ``<task>`` is the URLB task name
 (``walker_flip``, :func:`task_name`). The run code (:mod:`sb3_cic.protocol`) and the job graph
 (:mod:`sb3_cic.study.graph`) both read the layout here.
 """
@@ -53,10 +54,21 @@ def task_env_id(domain: str, task: str) -> str:
     return f"URLB/{domain}-{short}-v0"
 
 
-def run_label(method: str, snapshot: int | None) -> str:
-    """The method's name in the study's folders and reports: ``cic``, or ``cic@100000`` for fine-tunings from the
-    snapshot at 100,000 steps (None: the final one)."""
-    return method if snapshot is None else f"{method}@{snapshot}"
+def run_label(method: str, snapshot: int | None = None, skill_choice: str | None = None) -> str:
+    """The method's name in the study's folders and reports: ``cic``; ``cic@100000`` for fine-tunings from the
+    snapshot at 100,000 steps (None: the final one); ``cic+fixed`` for fine-tunings that choose their skill by the
+    method's ``fixed`` choice (None: the yaml's ``finetune_skill_choice``)."""
+    return method + ("" if snapshot is None else f"@{snapshot}") + ("" if skill_choice is None else f"+{skill_choice}")
+
+
+def parse_label(label: str) -> tuple[str, int | None, str | None]:
+    """``(method, snapshot, skill_choice)`` of a :func:`run_label`; ``ValueError`` for a label it does not make."""
+    rest, plus, skill_choice = label.partition("+")
+    method, at, step = rest.partition("@")
+    snapshot = int(step) if step.isdigit() and str(int(step)) == step else None
+    if not method or (at and snapshot is None) or (plus and not skill_choice.isidentifier()):
+        raise ValueError(f"{label!r} is no label of a study's runs (<method>[@<step>][+<skill choice>])")
+    return method, snapshot, skill_choice or None
 
 
 def pretrain_dir(study: str | Path, method: str, domain: str, seed: int | None = None) -> Path:

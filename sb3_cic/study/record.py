@@ -129,10 +129,12 @@ def _check_study_data(data: Any) -> None:
     if not isinstance(runs, list):
         raise ValueError("'runs' is not a list")
     for row in runs:
-        if not (isinstance(row, list) and 4 <= len(row) <= 5 and isinstance(row[0], str) and isinstance(row[1], str)
+        if not (isinstance(row, list) and 4 <= len(row) <= 6 and isinstance(row[0], str) and isinstance(row[1], str)
                 and (row[2] is None or isinstance(row[2], str)) and isinstance(row[3], int)
-                and (len(row) == 4 or row[4] is None or isinstance(row[4], int))):
-            raise ValueError(f"the run {row!r} is not [method, domain, task or null, seed, snapshot or null]")
+                and (len(row) == 4 or row[4] is None or isinstance(row[4], int))
+                and (len(row) < 6 or isinstance(row[5], str))):
+            raise ValueError(f"the run {row!r} is not [method, domain, task or null, seed, snapshot or null"
+                             "(, skill choice)]")
 
 
 def read_study_record(study: str | Path) -> dict[str, Any]:

@@ -27,7 +27,7 @@ from sb3_cic import zoo
 from sb3_cic.envs.tasks import DOMAIN_TASKS
 from sb3_cic.study.run_result import read_run_result
 from sb3_cic.study.record import Pairing, read_study_record, rebuild_study_record, run_settings_of
-from sb3_cic.study.layout import study_file
+from sb3_cic.study.layout import parse_label, study_file
 
 #: how a counted run came to be read (the report counts each)
 KINDS: dict[str, str] = {
@@ -48,19 +48,19 @@ def domain_of(task: str) -> str:
     raise ValueError(f"{task!r} is no task of a known domain")
 
 
-def place_of(folder: Path) -> tuple[str, str, str, int, int | None]:
-    """``(method, label, task, seed, snapshot)`` of a fine-tuning folder ``finetune/<label>/<task>/seed_<k>``;
-    ``ValueError`` for a folder the study's layout does not make."""
+def place_of(folder: Path) -> tuple[str, str, str, int, int | None, str | None]:
+    """``(method, label, task, seed, snapshot, skill choice)`` of a fine-tuning folder
+    ``finetune/<label>/<task>/seed_<k>``; ``ValueError`` for a folder the study's layout does not make."""
     label, task, name = folder.parts[-3:]
     if not name.startswith("seed_") or not name[5:].isdigit() or str(int(name[5:])) != name[5:]:
         raise ValueError(f"{folder} is no run folder of a study (seed_<k>)")
-    method, _, step = label.partition("@")
-    snapshot = int(step) if step.isdigit() else None
-    if step and (snapshot is None or str(snapshot) != step):
-        raise ValueError(f"{folder} is no run folder of a study (label {label!r})")
+    try:
+        method, snapshot, skill_choice = parse_label(label)
+    except ValueError as error:
+        raise ValueError(f"{folder} is no run folder of a study ({error})") from None
     zoo.get_algo(method)  # a ValueError for an unknown method
     domain_of(task)
-    return method, label, task, int(name[5:]), snapshot
+    return method, label, task, int(name[5:]), snapshot, skill_choice
 
 
 def snapshot_hash(study: Path, method: str, domain: str, pretrain_seed: int, pairing: Pairing, step: int | None) -> str | None:
@@ -88,7 +88,7 @@ def expected_fields(
     :param settings: the study's recorded settings (None: none recorded)
     :param pairing: the study's pairing (None: none recorded)
     """
-    method, label, task, seed, snapshot = place_of(folder)
+    method, label, task, seed, snapshot, skill_choice = place_of(folder)
     from_scratch = not zoo.has_reward_module(zoo.get_algo(method))
     expected: dict[str, Any] = {"method": method, "label": label, "domain": domain_of(task), "task": task, "seed": seed,
                                 "from_scratch": from_scratch}
@@ -98,6 +98,8 @@ def expected_fields(
     if from_scratch:
         expected["pretrain_seed"] = None
         return expected
+    if skill_choice is not None:
+        expected["finetune_skill_choice"] = skill_choice
     if snapshot is not None:
         expected["snapshot_steps"] = snapshot
     elif settings.get("pretrain_steps") is not None:
@@ -187,8 +189,9 @@ def study_results(study: str | Path, warn: bool = True) -> StudyResults:
             expected = expected_fields(study, folder, settings, pairing)
             own = run_settings_of(folder)
             if own is not None:
-                row = [expected["method"], expected["domain"], expected["task"], expected["seed"],
-                       expected.get("snapshot_steps") if "@" in expected["label"] else None]
+                _, snapshot, skill_choice = parse_label(expected["label"])
+                row = Run(expected["method"], expected["domain"], expected["task"], expected["seed"], snapshot,
+                          skill_choice=skill_choice).row()
                 if list(own["run"]) != row:
                     raise ValueError(f"{folder / 'settings.json'} records the run {own['run']} but its place in the study is "
                                      f"{row}: it was moved or copied; move it back or delete it")

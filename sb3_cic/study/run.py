@@ -29,8 +29,11 @@ class Run:
         from scratch)
     :param shared: a run of a study with shared pre-training (:class:`~sb3_cic.study.record.Pairing`): its
         pre-training folder has no seed in its name (:func:`~sb3_cic.study.layout.pretrain_dir`)
+    :param skill_choice: how a fine-tuning chooses its skill, one of the method's ``finetune_skill_choices``
+        (``fixed``, ``sweep``...; None: the yaml's ``finetune_skill_choice``)
 
-    ``study.json`` lists the first five fields (:meth:`row`); the pairing is the study's.
+    ``study.json`` lists the first five fields and the skill choice, when there is one (:meth:`row`); the pairing
+    is the study's.
     """
 
     method: str
@@ -40,11 +43,13 @@ class Run:
     snapshot: int | None = None
     pretrain_seed: int | None = None
     shared: bool = False
+    skill_choice: str | None = None
 
     @classmethod
     def of_row(cls, row: Sequence[Any], pairing: Pairing | None) -> Run:
-        """The run of a ``study.json`` row (4 or 5 fields) in a study with ``pairing`` (None: none pre-trained)."""
-        run = cls(*row)
+        """The run of a ``study.json`` row (4 to 6 fields) in a study with ``pairing`` (None: none pre-trained)."""
+        method, domain, task, seed, *rest = row
+        run = cls(method, domain, task, seed, rest[0] if rest else None, skill_choice=rest[1] if len(rest) > 1 else None)
         shared = pairing is not None and not pairing.paired
         if run.task is None:
             return dataclasses.replace(run, shared=shared)
@@ -53,8 +58,10 @@ class Run:
         return dataclasses.replace(run, pretrain_seed=pairing.pretrain_seed(run.seed), shared=shared)
 
     def row(self) -> list[Any]:
-        """The run as ``study.json`` lists it: ``[method, domain, task or None, seed, snapshot or None]``."""
-        return [self.method, self.domain, self.task, self.seed, self.snapshot]
+        """The run as ``study.json`` lists it: ``[method, domain, task or None, seed, snapshot or None]``, and the
+        skill choice when there is one."""
+        row = [self.method, self.domain, self.task, self.seed, self.snapshot]
+        return row if self.skill_choice is None else [*row, self.skill_choice]
 
     @property
     def kind(self) -> str:
@@ -75,8 +82,8 @@ class Run:
 
     @property
     def label(self) -> str:
-        """The method's name in the study's folders and reports (``cic``, ``cic@100000``)."""
-        return run_label(self.method, self.snapshot)
+        """The method's name in the study's folders and reports (``cic``, ``cic@100000``, ``cic+fixed``)."""
+        return run_label(self.method, self.snapshot, self.skill_choice)
 
     def dependency(self) -> Run | None:
         """The pre-training a fine-tuning starts from (None for a pre-training or a run from scratch)."""
