@@ -576,11 +576,11 @@ def _run(command: str, argv: list[str]) -> int:
 
         return (study_cli.main if command == "study" else study_cli.status_main)(argv)
     elif command == "report":
-        from sb3_cic.evaluation import main as report_main
+        from sb3_cic.report.commands import report_main
 
         report_main(argv)
     elif command == "benchmark-report":
-        from sb3_cic.benchmark import main as benchmark_main
+        from sb3_cic.report.commands import benchmark_main
 
         benchmark_main(argv)
     elif command == "skills":

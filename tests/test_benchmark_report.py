@@ -1,4 +1,4 @@
-"""The whole-benchmark report (sb3_cic.benchmark): results of several study folders beside Tables 5 and 6."""
+"""The whole-benchmark report (sb3_cic.report.benchmark): results of several study folders beside Tables 5 and 6."""
 
 from __future__ import annotations
 
@@ -9,9 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sb3_cic import benchmark
 from sb3_cic.cli import main as cli_main
 from sb3_cic.constants import EXPERT_SCORES, PUBLISHED_RETURNS
+from sb3_cic.envs.tasks import URLB_TASKS
+from sb3_cic.report import benchmark
+from sb3_cic.report.commands import write_benchmark_report
 
 
 def write_run(study: Path, label: str, task: str, seed: int, final_return: float) -> None:
@@ -44,15 +46,15 @@ def published_study(root: Path, seeds: tuple[int, ...] = (0,), scale: float = 1.
 
 def test_table6_returns_give_table6_median_and_mean(tmp_path):
     studies = published_study(tmp_path)
-    report = benchmark.write_benchmark_report(studies, tmp_path / "out", reps=50)
+    report = write_benchmark_report(studies, tmp_path / "out", reps=50)
     assert set(report["aggregates"]) == set(PUBLISHED_RETURNS)
     for label, aggregates in report["aggregates"].items():
-        published = benchmark.published_aggregates(label, benchmark.ALL_TASKS)
+        published = benchmark.published_aggregates(label, URLB_TASKS)
         for metric in ("Median", "Mean"):
             if published[metric][1] == "Table 6":  # derived from the same means: exact
                 assert aggregates[metric]["point"] == pytest.approx(published[metric][0])
-    assert benchmark.published_aggregates("cic", benchmark.ALL_TASKS)["IQM"] == (0.77, "Table 5")
-    for domain in benchmark.DOMAIN_TASKS:
+    assert benchmark.published_aggregates("cic", URLB_TASKS)["IQM"] == (0.77, "Table 5")
+    for domain in benchmark.URLB_DOMAINS:
         assert set(report["domains"][domain]) == set(PUBLISHED_RETURNS)
     assert (tmp_path / "out" / "aggregates.png").stat().st_size > 0
     text = (tmp_path / "out" / "report.md").read_text()
@@ -61,7 +63,7 @@ def test_table6_returns_give_table6_median_and_mean(tmp_path):
 
 
 def test_same_order_as_table6_is_rank_one_and_unlikely_by_chance(tmp_path):
-    report = benchmark.write_benchmark_report(published_study(tmp_path), tmp_path / "out", reps=50)
+    report = write_benchmark_report(published_study(tmp_path), tmp_path / "out", reps=50)
     agreement = report["rank_agreement"]["all 12 tasks"]
     assert agreement["rho"] == pytest.approx(1.0)
     assert agreement["p_permutation"] < 0.01
@@ -74,7 +76,7 @@ def test_same_order_as_table6_is_rank_one_and_unlikely_by_chance(tmp_path):
 
 def test_reversed_order_is_not_agreement(tmp_path):
     ours = {label: {task: [-mean] for task, (mean, _) in table.items()} for label, table in PUBLISHED_RETURNS.items()}
-    agreement = benchmark.rank_agreement(ours, benchmark.ALL_TASKS, reps=500)
+    agreement = benchmark.rank_agreement(ours, URLB_TASKS, reps=500)
     assert agreement["rho"] == pytest.approx(-1.0)
     assert agreement["p_permutation"] == pytest.approx(1.0)
 
@@ -84,17 +86,17 @@ def test_permutation_p_is_exact_for_few_methods(n_methods):
     """Up to 8 methods every re-ordering is counted: the same order as Table 6 is the one of n! that agrees as well."""
     labels = sorted(PUBLISHED_RETURNS)[:n_methods]
     ours = {label: {task: [mean] for task, (mean, _) in PUBLISHED_RETURNS[label].items()} for label in labels}
-    agreement = benchmark.rank_agreement(ours, benchmark.ALL_TASKS, reps=10)
+    agreement = benchmark.rank_agreement(ours, URLB_TASKS, reps=10)
     assert agreement["rho"] == pytest.approx(1.0)
     assert agreement["p_permutation"] == pytest.approx(1 / math.factorial(n_methods))
 
 
 def test_seed_interval_with_several_seeds_and_seed_filter(tmp_path):
     studies = published_study(tmp_path, seeds=(0, 1))
-    both = benchmark.write_benchmark_report(studies, tmp_path / "both", reps=50)
+    both = write_benchmark_report(studies, tmp_path / "both", reps=50)
     assert both["seeds"] == [0, 1]
     assert both["rank_agreement"]["quadruped"]["seeds_low"] is not None
-    only_0 = benchmark.write_benchmark_report(studies, tmp_path / "zero", seeds=[0], reps=50)
+    only_0 = write_benchmark_report(studies, tmp_path / "zero", seeds=[0], reps=50)
     assert only_0["seeds"] == [0]
     assert only_0["returns"]["cic"]["walker_flip"] == [PUBLISHED_RETURNS["cic"]["walker_flip"][0]]
 
@@ -128,7 +130,7 @@ def test_claims_on_domains_and_order():
     an order whose permutation p is not below 0.05 is said not to be told apart from a random one."""
     point = lambda x: {"IQM": {"point": x}}  # noqa: E731
     domains = {
-        d: {"ddpg": point(0.3), "cic": point(0.6), "apt": point(0.5 if d != "jaco" else 0.2)} for d in benchmark.DOMAIN_TASKS
+        d: {"ddpg": point(0.3), "cic": point(0.6), "apt": point(0.5 if d != "jaco" else 0.2)} for d in benchmark.URLB_DOMAINS
     }
     agreement = {"walker": {"rho": 0.2, "p_permutation": 0.35, "methods": ["a", "b", "c"]}, "jaco": None}
     said = benchmark.claims({}, domains, agreement)

@@ -19,8 +19,9 @@ from pathlib import Path
 import pytest
 import torch as th
 
-from sb3_cic.evaluation import load_results, write_report
 from sb3_cic.protocol import Settings, finetune, run_protocol
+from sb3_cic.report.commands import write_report
+from sb3_cic.report.scores import load_results
 from sb3_cic.study.checkpoint import RunFolder
 from sb3_cic.study.engine import stop_runs
 from sb3_cic.study.graph import Run, run_state, status_report

@@ -1,7 +1,8 @@
-"""The whole-benchmark report: URLB's 12 tasks over several study folders, beside the CIC paper's Tables 5 and 6.
+"""The whole-benchmark report: URLB's 12 tasks over several study folders, beside the CIC paper's Tables 5 and 6,
+built as a plain object (:class:`BenchmarkReport`).
 
-:func:`write_benchmark_report` reads the fine-tuning results of one or more study folders (say the quadruped
-study and the walker-and-jaco study), keeps the seeds asked for, and writes into an output folder:
+:func:`build_benchmark_report` reads the fine-tuning results of one or more study folders (say the quadruped
+study and the walker-and-jaco study), keeps the seeds asked for, and computes:
 
 * per task, each method's final return beside Table 6 (:data:`~sb3_cic.constants.PUBLISHED_RETURNS`);
 * per method over the 12 tasks, rliable's IQM, median, mean and optimality gap of normalised scores beside
@@ -16,26 +17,29 @@ study and the walker-and-jaco study), keeps the seeds asked for, and writes into
 * the seed's claims at this scale (:func:`claims`).
 
 With one seed per task, rliable's stratified bootstrap has nothing to resample within a task: the intervals of
-the aggregates are then points, and the report says so.
+the aggregates are then points, and the report says so. :mod:`sb3_cic.report.markdown` and
+:mod:`sb3_cic.report.figures` write it.
 """
 
 from __future__ import annotations
 
 import itertools
-import json
 from collections import defaultdict
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
 
-from sb3_cic.common.arguments import argument_parser, option_type
 from sb3_cic.constants import EXPERT_SCORES, PUBLISHED_AGGREGATES, PUBLISHED_RETURNS
-from sb3_cic.evaluation import METRICS, _fmt, aggregate_scores, plot_aggregates, score_matrices
+from sb3_cic.envs.tasks import DOMAIN_TASKS, URLB_TASKS
+from sb3_cic.report.scores import METRICS, aggregate_scores, score_matrices
+from sb3_cic.report.text import fmt
 
-#: URLB's domains, each with its four tasks in the paper's order
-DOMAIN_TASKS: dict[str, tuple[str, ...]] = {
-    domain: tuple(task for task in EXPERT_SCORES if task.startswith(domain + "_")) for domain in ("walker", "quadruped", "jaco")
+#: URLB's domains, each with its four tasks (``walker_stand``...) in the paper's order
+URLB_DOMAINS: dict[str, tuple[str, ...]] = {
+    domain: tuple(f"{domain}_{task}" for task in tasks) for domain, tasks in DOMAIN_TASKS.items()
+    if f"{domain}_{tasks[0]}" in URLB_TASKS
 }
 
 #: up to this many methods, the permutation p-value of :func:`rank_agreement` enumerates every re-ordering (8! = 40320)
@@ -43,9 +47,6 @@ EXACT_PERMUTATIONS_UP_TO = 8
 
 #: a permutation p-value below this says that our order agrees with Table 6's beyond chance (:func:`claims`)
 AGREEMENT_LEVEL = 0.05
-
-#: the 12 tasks
-ALL_TASKS: tuple[str, ...] = tuple(task for tasks in DOMAIN_TASKS.values() for task in tasks)
 
 
 def gather_results(
@@ -101,7 +102,7 @@ def published_aggregates(label: str, tasks: Sequence[str]) -> dict[str, tuple[fl
     :return: ``{metric: (value or None, "Table 5" | "Table 6" | "")}``
     """
     out: dict[str, tuple[float | None, str]] = {metric: (None, "") for metric in METRICS}
-    if tuple(sorted(tasks)) == tuple(sorted(ALL_TASKS)):
+    if tuple(sorted(tasks)) == tuple(sorted(URLB_TASKS)):
         for metric, value in PUBLISHED_AGGREGATES.get(label, {}).items():
             out[metric] = (value, "Table 5")
     table = PUBLISHED_RETURNS.get(label)
@@ -224,165 +225,107 @@ def claims(
         lines.append(f"Methods whose IQM is above DDPG from scratch's in all three domains: {', '.join(good) or 'none'}.")
         for domain, agg in domains.items():
             best = max(agg, key=lambda label: agg[label]["IQM"]["point"])
-            lines.append(f"Best IQM on {domain}: {best} ({_fmt(agg[best]['IQM']['point'])}).")
+            lines.append(f"Best IQM on {domain}: {best} ({fmt(agg[best]['IQM']['point'])}).")
     for name, row in (agreement or {}).items():
         if row is not None:
             p = row["p_permutation"]
             verdict = (f"agrees beyond chance (p < {AGREEMENT_LEVEL:g})" if p < AGREEMENT_LEVEL
                        else "not told apart from a random order")
-            lines.append(f"Table 6's order on {name} ({len(row['methods'])} methods): Spearman {_fmt(row['rho'])}, "
-                         f"permutation p {_fmt(p)}: {verdict}.")
+            lines.append(f"Table 6's order on {name} ({len(row['methods'])} methods): Spearman {fmt(row['rho'])}, "
+                         f"permutation p {fmt(p)}: {verdict}.")
     return lines
 
 
-def _short(study: str | Path) -> str:
-    """A study folder's name for the report: its last two path components (``quadruped_reduced/runs``)."""
-    return "/".join(Path(study).resolve().parts[-2:])
 
 
-def _aggregate_table(aggregates: dict[str, dict[str, dict[str, float]]], tasks: Sequence[str], n_runs: dict[str, int]) -> list[str]:
-    lines = ["| method | runs | " + " | ".join(f"{m} ours | {m} published" for m in METRICS) + " |"]
-    lines.append("|---|---:|" + "---:|---:|" * len(METRICS))
-    for label, agg in sorted(aggregates.items(), key=lambda item: -item[1]["IQM"]["point"]):
-        published = published_aggregates(label, tasks)
-        cells = []
-        for metric in METRICS:
-            ours, (value, source) = agg[metric], published[metric]
-            interval = "" if ours["low"] == ours["high"] else f" [{_fmt(ours['low'])}, {_fmt(ours['high'])}]"
-            cells.append(f"{_fmt(ours['point'])}{interval}")
-            cells.append(f"{_fmt(value)}" + (" (T6)" if source == "Table 6" else ""))
-        lines.append(f"| {label} | {n_runs[label]} | " + " | ".join(cells) + " |")
-    return lines
+@dataclass
+class BenchmarkReport:
+    """The numbers of the whole-benchmark report.
+
+    :param studies: the study folders read
+    :param seeds: the fine-tuning seeds kept (that some run has)
+    :param reps: bootstrap replications (the rank agreement's resamples: ``5 * reps``)
+    :param runs_read: ``{study: lines}``, how many runs of which kind each study counted
+    :param results: the fine-tuning results kept
+    :param returns: ``{label: {task: [final return per seed]}}``
+    :param aggregates: ``{label: {metric: {"point", "low", "high"}}}`` over the 12 tasks (the labels with all 12)
+    :param runs: ``{label: runs}`` of the 12-task matrices
+    :param domains: ``{domain: aggregates over its four tasks}``
+    :param domain_runs: ``{domain: {label: runs}}``
+    :param rank_agreement: ``{domain or "all 12 tasks": rank_agreement(...)}``
+    :param claims: the seed's claims at this scale (:func:`claims`)
+    """
+
+    studies: list[str]
+    seeds: list[int]
+    reps: int
+    runs_read: dict[str, list[str]]
+    results: list[dict[str, Any]]
+    returns: dict[str, dict[str, list[float]]]
+    aggregates: dict[str, dict[str, dict[str, float]]]
+    runs: dict[str, int]
+    domains: dict[str, dict[str, dict[str, dict[str, float]]]]
+    domain_runs: dict[str, dict[str, int]]
+    rank_agreement: dict[str, dict[str, Any] | None]
+    claims: list[str]
+
+    def to_json(self) -> dict[str, Any]:
+        """The ``report.json`` content."""
+        return {
+            "studies": self.studies,
+            "seeds": self.seeds,
+            "runs_read": self.runs_read,
+            "returns": {label: dict(tasks) for label, tasks in self.returns.items()},
+            "aggregates": self.aggregates,
+            "domains": self.domains,
+            "rank_agreement": self.rank_agreement,
+            "claims": self.claims,
+        }
 
 
-def write_benchmark_report(
-    studies: Sequence[str | Path], out: str | Path, seeds: Sequence[int] | None = None, reps: int = 2000, seed: int = 0
-) -> dict[str, Any]:
-    """Write ``report.md``, ``report.json`` and ``aggregates.png`` of the whole benchmark into ``out``.
+def _domain_aggregates(results: list[dict[str, Any]], reps: int, seed: int) -> tuple[dict[str, Any], dict[str, dict[str, int]]]:
+    """Per domain, the aggregates of the labels with all its tasks, and their runs."""
+    domains, domain_runs = {}, {}
+    for domain, tasks in URLB_DOMAINS.items():
+        matrices, _, seeds_of = score_matrices(results, tasks)
+        full = {label: m for label, m in matrices.items() if m.shape[1] == len(tasks)}
+        if full:
+            domains[domain] = aggregate_scores(full, reps=reps, seed=seed)
+            domain_runs[domain] = {label: len(seeds_of[label]) for label in domains[domain]}
+    return domains, domain_runs
+
+
+def build_benchmark_report(
+    studies: Sequence[str | Path], seeds: Sequence[int] | None = None, reps: int = 2000, seed: int = 0
+) -> BenchmarkReport:
+    """The whole-benchmark report of the fine-tunings of ``studies``.
 
     :param studies: study folders whose results are read together
-    :param out: output folder (created)
     :param seeds: fine-tuning seeds to keep (None: all)
     :param reps: bootstrap replications (the rank agreement's resamples: ``5 * reps``)
     :param seed: seed of the bootstrap and the permutations
-    :return: the ``report.json`` content
+    :raises ValueError: a folder without results, or one run in two folders (:func:`gather_results`)
     """
     read: dict[str, list[str]] = {}
     results = gather_results(studies, seeds, read)
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     ours = task_means(results)
-    matrices, _, seeds_of = score_matrices(results, ALL_TASKS)
-    full = {label: m for label, m in matrices.items() if m.shape[1] == len(ALL_TASKS)}
+    matrices, _, seeds_of = score_matrices(results, URLB_TASKS)
+    full = {label: m for label, m in matrices.items() if m.shape[1] == len(URLB_TASKS)}
     aggregates = aggregate_scores(full, reps=reps, seed=seed)
-    domains = {}
-    for domain, tasks in DOMAIN_TASKS.items():
-        per_domain, _, _ = score_matrices(results, tasks)
-        per_domain = {label: m for label, m in per_domain.items() if m.shape[1] == len(tasks)}
-        if per_domain:
-            domains[domain] = aggregate_scores(per_domain, reps=reps, seed=seed)
-    agreement = {domain: rank_agreement(ours, tasks, reps=5 * reps, seed=seed) for domain, tasks in DOMAIN_TASKS.items()}
-    agreement["all 12 tasks"] = rank_agreement(ours, ALL_TASKS, reps=5 * reps, seed=seed)
-    said = claims(aggregates, domains if len(domains) == len(DOMAIN_TASKS) else {}, agreement)
-
-    kept = sorted({r["seed"] for r in results})
-    lines = [
-        "# URLB over the 12 tasks",
-        "",
-        f"Studies: {', '.join(f'`{_short(s)}`' for s in studies)}; fine-tuning seeds {', '.join(map(str, kept))}. "
-        "Final return = the last evaluation's mean return; normalised score = return / expert score.",
-        "",
-        "## Runs read (before the seeds were chosen)",
-        "",
-        *[f"- `{_short(study)}`: {line}" for study, described in read.items() for line in described],
-        "",
-        "## Per task, beside Table 6",
-        "",
-        "Ours: mean final return over seeds (n); Table 6: mean ± standard error over 10 seeds (2M pre-training, full size).",
-        "",
-    ]
-    labels = sorted(ours)
-    lines += ["| task | " + " | ".join(labels) + " |", "|---|" + "---:|" * len(labels)]
-    for task in ALL_TASKS:
-        cells = []
-        for label in labels:
-            runs = ours[label].get(task)
-            mine = f"{np.mean(runs):.1f}" + (f" (n={len(runs)})" if runs and len(runs) > 1 else "") if runs else "–"
-            table = PUBLISHED_RETURNS.get(label, {}).get(task)
-            cells.append(mine + (f" / {table[0]:g}±{table[1]:g}" if table else ""))
-        lines.append(f"| {task} | " + " | ".join(cells) + " |")
-    n_runs = {label: len(s) for label, s in seeds_of.items()}
-    lines += ["", "## Over the 12 tasks, beside Table 5", ""]
-    if not aggregates:
-        lines += ["No method has results on all 12 tasks yet.", ""]
-    else:
-        lines += [
-            f"rliable, stratified bootstrap 95% intervals ({reps} reps; a point where each task has one run). Published: "
-            "Table 5's value, or (T6) the median and mean of Table 6's per-task means (exact); – not published.",
-            "",
-        ]
-        lines += _aggregate_table(aggregates, ALL_TASKS, n_runs)
-        plot_aggregates(aggregates, out / "aggregates.png")
-        lines += ["", "![aggregates](aggregates.png)", ""]
-    lines += ["## Per domain (Figure 8's view)", ""]
-    for domain, agg in domains.items():
-        per_domain_runs = {label: len(score_matrices(results, DOMAIN_TASKS[domain])[2][label]) for label in agg}
-        lines += [f"### {domain}", ""] + _aggregate_table(agg, DOMAIN_TASKS[domain], per_domain_runs) + [""]
-    lines += [
-        "## Does our order of the methods agree with Table 6's?",
-        "",
-        "Spearman's rank correlation of the mean normalised scores. p (permutation): the share of re-orderings of our "
-        f"means that agree with Table 6 at least as well (one-sided; every re-ordering up to {EXACT_PERMUTATIONS_UP_TO} "
-        f"methods, else {5 * reps} random ones). Methods interval: 95% over resamples of the "
-        "methods. Seeds interval: 95% over resamples of each method's seeds per task, the methods fixed (– with one seed).",
-        "",
-        "| tasks | methods | Spearman | p (permutation) | methods interval | seeds interval |",
-        "|---|---:|---:|---:|---:|---:|",
-    ]
-    for name, row in agreement.items():
-        if row is None:
-            lines.append(f"| {name} | – | – | – | – | – |")
-            continue
-        seeds_interval = "–" if row["seeds_low"] is None else f"[{_fmt(row['seeds_low'])}, {_fmt(row['seeds_high'])}]"
-        lines.append(
-            f"| {name} | {len(row['methods'])} | {_fmt(row['rho'])} | {_fmt(row['p_permutation'])} | "
-            f"[{_fmt(row['methods_low'])}, {_fmt(row['methods_high'])}] | {seeds_interval} |"
-        )
-    lines += ["", "## The seed's claims at this scale (point estimates)", ""] + [f"- {line}" for line in said] + [""]
-    (out / "report.md").write_text("\n".join(lines))
-    report = {
-        "studies": [str(s) for s in studies],
-        "seeds": kept,
-        "runs_read": read,
-        "returns": {label: dict(tasks) for label, tasks in ours.items()},
-        "aggregates": aggregates,
-        "domains": domains,
-        "rank_agreement": agreement,
-        "claims": said,
-    }
-    (out / "report.json").write_text(json.dumps(report, indent=2, default=float))
-    return report
-
-
-def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
-    """``sb3-cic benchmark-report <study> [<study> ...] --out <folder>``."""
-    parser = argument_parser(
-        "sb3-cic benchmark-report",
-        "URLB over the 12 tasks: the results of several study folders (written by sb3-cic study or sb3-cic protocol) "
-        "beside the CIC paper's Tables 5 and 6.",
+    domains, domain_runs = _domain_aggregates(results, reps, seed)
+    agreement = {domain: rank_agreement(ours, tasks, reps=5 * reps, seed=seed) for domain, tasks in URLB_DOMAINS.items()}
+    agreement["all 12 tasks"] = rank_agreement(ours, URLB_TASKS, reps=5 * reps, seed=seed)
+    return BenchmarkReport(
+        studies=[str(s) for s in studies],
+        seeds=sorted({r["seed"] for r in results}),
+        reps=reps,
+        runs_read=read,
+        results=results,
+        returns=ours,
+        aggregates=aggregates,
+        runs={label: len(s) for label, s in seeds_of.items()},
+        domains=domains,
+        domain_runs=domain_runs,
+        rank_agreement=agreement,
+        claims=claims(aggregates, domains if len(domains) == len(URLB_DOMAINS) else {}, agreement),
     )
-    parser.add_argument("studies", nargs="+", help="study folders")
-    parser.add_argument("--out", required=True, help="output folder for report.md, report.json and aggregates.png")
-    parser.add_argument("--seeds", type=option_type("seeds"), nargs="+", default=None, help="fine-tuning seeds to keep (default: all)")
-    parser.add_argument("--reps", type=option_type("reps"), default=2000, help="bootstrap replications")
-    parser.add_argument("--seed", type=option_type("seed"), default=0, help="seed of the bootstrap and the permutations")
-    args = parser.parse_args(argv)
-    for study in args.studies:
-        if not Path(study).is_dir():
-            parser.error(f"no such study folder: {study}")
-    try:
-        report = write_benchmark_report(args.studies, args.out, seeds=args.seeds, reps=args.reps, seed=args.seed)
-    except ValueError as error:
-        parser.error(str(error))
-    print((Path(args.out) / "report.md").read_text())
-    return report

@@ -1,0 +1,224 @@
+"""The reports as markdown, written from the report objects (:class:`~sb3_cic.report.study_report.StudyReport`,
+:class:`~sb3_cic.report.benchmark.BenchmarkReport`); nothing is computed here."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from sb3_cic.constants import PUBLISHED_RETURNS
+from sb3_cic.envs.tasks import URLB_TASKS
+from sb3_cic.report.benchmark import EXACT_PERMUTATIONS_UP_TO, URLB_DOMAINS, BenchmarkReport, published_aggregates
+from sb3_cic.report.figures import LEARNING_CURVES, aggregates_name
+from sb3_cic.report.scores import METRICS, describe_pairing
+from sb3_cic.report.study_report import StudyReport
+from sb3_cic.report.text import fmt, pm
+
+
+def _study_tables(report: StudyReport) -> list[str]:
+    """Runs read, per task, pre-training of each run, area under the learning curve."""
+    lines = [
+        "Final return = mean return of the last evaluation (deterministic episodes) of each run; "
+        "normalised score = return / expert score. Mean ± standard error over seeds.",
+        "",
+        "## Runs read",
+        "",
+        *[f"- {line}" for line in report.runs_read],
+        "",
+        "## Per task",
+        "",
+        "| method | task | seeds | final return | normalised score |",
+        "|---|---|---:|---:|---:|",
+    ]
+    for row in report.rows:
+        lines.append(
+            f"| {row['method']} | {row['task']} | {row['n']} | {pm(row['return_mean'], row['return_se'], 1)} "
+            f"| {pm(row['score_mean'], row['score_se'], 3)} |"
+        )
+    lines += [
+        "",
+        "## Pre-training of each run",
+        "",
+        "Paired: fine-tuning seed s from the pre-training of seed s (URLB's protocol); shared: from one pre-training "
+        "of another seed (the CIC code's). A shared study's fine-tunings of its pre-training seed are paired by "
+        "construction.",
+        "",
+        "| method | runs |",
+        "|---|---|",
+    ]
+    lines += [f"| {label} | {describe_pairing(entry)} |" for label, entry in report.pairing.items()]
+    lines += [
+        "",
+        "## Area under the learning curve",
+        "",
+        "Area under each run's evaluation curve divided by its span of steps (trapezoid rule): the mean "
+        "return over fine-tuning, which credits learning sooner. Mean ± standard error over seeds.",
+        "",
+        "| method | task | seeds | mean return over fine-tuning |",
+        "|---|---|---:|---:|",
+    ]
+    lines += [f"| {row['method']} | {row['task']} | {row['n']} | {pm(row['auc_mean'], row['auc_se'], 1)} |" for row in report.rows]
+    return lines
+
+
+def _study_aggregates(report: StudyReport) -> list[str]:
+    """One table and figure per task set that has aggregates (:func:`shown_comparisons`)."""
+    lines = ["", f"## Aggregates (normalised scores, rliable, stratified bootstrap 95% CI, {report.reps} reps)", ""]
+    shown = shown_comparisons(report)
+    if not shown:
+        lines += ["No method has normalised scores on all its tasks (no expert score): no aggregates.", ""]
+    for i, group in enumerate(shown):
+        lines += [f"Over {', '.join(group.tasks)}:", ""]
+        lines += ["| method | runs x tasks | IQM | median | mean | optimality gap |", "|---|---:|---:|---:|---:|---:|"]
+        for label, agg in group.aggregates.items():
+            cells = [f"{fmt(agg[k]['point'])} [{fmt(agg[k]['low'])}, {fmt(agg[k]['high'])}]" for k in METRICS]
+            lines.append(f"| {label} | {len(group.seeds_of[label])} x {len(group.tasks)} | " + " | ".join(cells) + " |")
+        lines += ["", f"![aggregates]({aggregates_name(i)})", ""]
+    return lines
+
+
+def shown_comparisons(report: StudyReport) -> list[Any]:
+    """The task sets of a study report that have aggregates, in the order of their figures."""
+    return [group for group in report.comparisons if group.aggregates]
+
+
+def _study_published(published: dict[str, Any] | None, reps: int) -> list[str]:
+    """Each method's mean normalised score beside the published one, and the rank correlation."""
+    if not published:
+        return []
+    lines = [
+        "## Against the published numbers",
+        "",
+        "Mean normalised score over the tasks each method ran (each task's mean over seeds; from the final snapshot), "
+        "beside the same mean of the published returns: the CIC paper's Table 6 (URLB's code, 2M pre-training "
+        "steps, full size, 10 seeds) and, for MOSS, its README.",
+        "",
+        "| method | tasks | this study | published | source |",
+        "|---|---:|---:|---:|---|",
+    ]
+    for row in published["methods"]:
+        lines.append(f"| {row['method']} | {len(row['tasks'])} | {fmt(row['ours'])} | {fmt(row['published'])} | {row['source']} |")
+    if published["spearman"] is not None:
+        lines += [
+            "",
+            f"Spearman's rank correlation over the {len(published['ranked'])} Table 6 methods on "
+            f"{', '.join(published['tasks'])}: {fmt(published['spearman'])} "
+            f"[{fmt(published['low'])}, {fmt(published['high'])}] (95% interval, {reps} bootstrap resamples of "
+            "each method's seeds per task).",
+        ]
+    return lines + [""]
+
+
+def render_study(report: StudyReport) -> str:
+    """The ``report.md`` of one study."""
+    lines = [f"# URLB report: `{report.study}`", ""]
+    lines += _study_tables(report) + _study_aggregates(report) + _study_published(report.published, report.reps)
+    lines += ["## Learning curves", "", f"![learning curves]({LEARNING_CURVES})", "", "## Wall time", ""]
+    lines += ["| method | task | pre-training (s) | fine-tuning per run (s) |", "|---|---|---:|---:|"]
+    for row in report.rows:
+        lines.append(f"| {row['method']} | {row['task']} | {fmt(row['pretrain_wall_s'], 1)} | {fmt(row['finetune_wall_s'], 1)} |")
+    return "\n".join(lines) + "\n"
+
+
+def short_name(study: str | Path) -> str:
+    """A study folder's name for the report: its last two path components (``quadruped_reduced/runs``)."""
+    return "/".join(Path(study).resolve().parts[-2:])
+
+
+def aggregate_table(aggregates: dict[str, dict[str, dict[str, float]]], tasks: Sequence[str], n_runs: dict[str, int]) -> list[str]:
+    """Our four statistics beside the published ones, one row per method, best IQM first."""
+    lines = ["| method | runs | " + " | ".join(f"{m} ours | {m} published" for m in METRICS) + " |"]
+    lines.append("|---|---:|" + "---:|---:|" * len(METRICS))
+    for label, agg in sorted(aggregates.items(), key=lambda item: -item[1]["IQM"]["point"]):
+        published = published_aggregates(label, tasks)
+        cells = []
+        for metric in METRICS:
+            ours, (value, source) = agg[metric], published[metric]
+            interval = "" if ours["low"] == ours["high"] else f" [{fmt(ours['low'])}, {fmt(ours['high'])}]"
+            cells.append(f"{fmt(ours['point'])}{interval}")
+            cells.append(f"{fmt(value)}" + (" (T6)" if source == "Table 6" else ""))
+        lines.append(f"| {label} | {n_runs[label]} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def _per_task_beside_table6(returns: dict[str, dict[str, list[float]]]) -> list[str]:
+    """Per task, each method's mean final return over its seeds beside Table 6's."""
+    labels = sorted(returns)
+    lines = ["| task | " + " | ".join(labels) + " |", "|---|" + "---:|" * len(labels)]
+    for task in URLB_TASKS:
+        cells = []
+        for label in labels:
+            runs = returns[label].get(task)
+            mine = f"{np.mean(runs):.1f}" + (f" (n={len(runs)})" if runs and len(runs) > 1 else "") if runs else "–"
+            table = PUBLISHED_RETURNS.get(label, {}).get(task)
+            cells.append(mine + (f" / {table[0]:g}±{table[1]:g}" if table else ""))
+        lines.append(f"| {task} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def _agreement_table(agreement: dict[str, dict[str, Any] | None], reps: int) -> list[str]:
+    """Spearman against Table 6 per task set, with its p-value and intervals."""
+    lines = [
+        "## Does our order of the methods agree with Table 6's?",
+        "",
+        "Spearman's rank correlation of the mean normalised scores. p (permutation): the share of re-orderings of our "
+        f"means that agree with Table 6 at least as well (one-sided; every re-ordering up to {EXACT_PERMUTATIONS_UP_TO} "
+        f"methods, else {5 * reps} random ones). Methods interval: 95% over resamples of the "
+        "methods. Seeds interval: 95% over resamples of each method's seeds per task, the methods fixed (– with one seed).",
+        "",
+        "| tasks | methods | Spearman | p (permutation) | methods interval | seeds interval |",
+        "|---|---:|---:|---:|---:|---:|",
+    ]
+    for name, row in agreement.items():
+        if row is None:
+            lines.append(f"| {name} | – | – | – | – | – |")
+            continue
+        seeds_interval = "–" if row["seeds_low"] is None else f"[{fmt(row['seeds_low'])}, {fmt(row['seeds_high'])}]"
+        lines.append(
+            f"| {name} | {len(row['methods'])} | {fmt(row['rho'])} | {fmt(row['p_permutation'])} | "
+            f"[{fmt(row['methods_low'])}, {fmt(row['methods_high'])}] | {seeds_interval} |"
+        )
+    return lines
+
+
+def _over_the_12_tasks(report: BenchmarkReport) -> list[str]:
+    """The aggregates over the 12 tasks beside Table 5, and their figure."""
+    lines = ["", "## Over the 12 tasks, beside Table 5", ""]
+    if not report.aggregates:
+        return lines + ["No method has results on all 12 tasks yet.", ""]
+    lines += [
+        f"rliable, stratified bootstrap 95% intervals ({report.reps} reps; a point where each task has one run). Published: "
+        "Table 5's value, or (T6) the median and mean of Table 6's per-task means (exact); – not published.",
+        "",
+    ]
+    lines += aggregate_table(report.aggregates, URLB_TASKS, report.runs)
+    return lines + ["", f"![aggregates]({aggregates_name(0)})", ""]
+
+
+def render_benchmark(report: BenchmarkReport) -> str:
+    """The ``report.md`` of the whole benchmark."""
+    lines = [
+        "# URLB over the 12 tasks",
+        "",
+        f"Studies: {', '.join(f'`{short_name(s)}`' for s in report.studies)}; fine-tuning seeds "
+        f"{', '.join(map(str, report.seeds))}. Final return = the last evaluation's mean return; normalised score = "
+        "return / expert score.",
+        "",
+        "## Runs read (before the seeds were chosen)",
+        "",
+        *[f"- `{short_name(study)}`: {line}" for study, described in report.runs_read.items() for line in described],
+        "",
+        "## Per task, beside Table 6",
+        "",
+        "Ours: mean final return over seeds (n); Table 6: mean ± standard error over 10 seeds (2M pre-training, full size).",
+        "",
+    ]
+    lines += _per_task_beside_table6(report.returns) + _over_the_12_tasks(report)
+    lines += ["## Per domain (Figure 8's view)", ""]
+    for domain, agg in report.domains.items():
+        lines += [f"### {domain}", ""] + aggregate_table(agg, URLB_DOMAINS[domain], report.domain_runs[domain]) + [""]
+    lines += _agreement_table(report.rank_agreement, report.reps)
+    lines += ["", "## The seed's claims at this scale (point estimates)", ""] + [f"- {line}" for line in report.claims] + [""]
+    return "\n".join(lines)
