@@ -4,7 +4,9 @@
   aggregates, the comparison with the published returns);
 * :mod:`sb3_cic.report.study_report`: one study's report (``sb3-cic report``), :class:`StudyReport`;
 * :mod:`sb3_cic.report.benchmark`: the 12 tasks over several studies beside the CIC paper's Tables 5 and 6
-  (``sb3-cic benchmark-report``), :class:`BenchmarkReport`;
+  (``sb3-cic benchmark-report``), :class:`BenchmarkReport`, with :mod:`sb3_cic.report.pairs` (which runs count:
+  paired or from scratch), :mod:`sb3_cic.report.domains` (per domain) and :mod:`sb3_cic.report.verdicts` (the
+  claims, each holding, not holding or undecided);
 * :mod:`sb3_cic.report.markdown`, :mod:`sb3_cic.report.figures`, :mod:`sb3_cic.report.text`: how they are written;
 * :mod:`sb3_cic.report.commands`: the two commands (build, then write).
 

@@ -8,7 +8,7 @@ from typing import Any, Sequence
 
 from sb3_cic.common.arguments import argument_parser, option_type
 from sb3_cic.report import figures, markdown
-from sb3_cic.report.benchmark import build_benchmark_report
+from sb3_cic.report.benchmark import ALL_12, URLB_DOMAINS, build_benchmark_report
 from sb3_cic.report.study_report import build_study_report
 
 
@@ -35,7 +35,10 @@ def write_report(study: str | Path, reps: int = 2000, seed: int = 0) -> dict[str
 def write_benchmark_report(
     studies: Sequence[str | Path], out: str | Path, seeds: Sequence[int] | None = None, reps: int = 2000, seed: int = 0
 ) -> dict[str, Any]:
-    """Write ``report.md``, ``report.json`` and ``aggregates.png`` of the whole benchmark into ``out``.
+    """Write ``report.md``, ``report.json`` and the figures of the whole benchmark into ``out``: ``aggregates.png``
+    (the 12-task aggregates beside Table 5), ``domains.png`` (Figure 8's view), ``learning_curves.png`` (per domain)
+    and ``versus_published.png`` (ours against Table 6, per method and domain); a figure without its numbers (no
+    method on all 12 tasks, say) is not drawn.
 
     :param studies: study folders whose results are read together
     :param out: output folder (created)
@@ -48,7 +51,13 @@ def write_benchmark_report(
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     if report.aggregates:
-        figures.plot_aggregates(report.aggregates, out / figures.aggregates_name(0))
+        figures.plot_aggregates_beside_published(report.aggregates, report.published[ALL_12], out / figures.aggregates_name(0))
+    if len(report.domains) == len(URLB_DOMAINS):
+        figures.plot_domains(report.domains, out / figures.DOMAINS)
+    if report.curves:
+        figures.plot_domain_curves(report.curves, out / figures.LEARNING_CURVES)
+    if report.versus_published:
+        figures.plot_versus_published(report.versus_published, out / figures.VERSUS_PUBLISHED)
     (out / "report.md").write_text(markdown.render_benchmark(report))
     content = report.to_json()
     (out / "report.json").write_text(json.dumps(content, indent=2, default=float))
@@ -78,7 +87,7 @@ def benchmark_main(argv: Sequence[str] | None = None) -> dict[str, Any]:
         "beside the CIC paper's Tables 5 and 6.",
     )
     parser.add_argument("studies", nargs="+", help="study folders")
-    parser.add_argument("--out", required=True, help="output folder for report.md, report.json and aggregates.png")
+    parser.add_argument("--out", required=True, help="output folder for report.md, report.json and the figures")
     parser.add_argument("--seeds", type=option_type("seeds"), nargs="+", default=None, help="fine-tuning seeds to keep (default: all)")
     parser.add_argument("--reps", type=option_type("reps"), default=2000, help="bootstrap replications")
     parser.add_argument("--seed", type=option_type("seed"), default=0, help="seed of the bootstrap and the permutations")

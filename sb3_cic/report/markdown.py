@@ -3,18 +3,26 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
 from sb3_cic.constants import PUBLISHED_RETURNS
 from sb3_cic.envs.tasks import URLB_TASKS
-from sb3_cic.report.benchmark import EXACT_PERMUTATIONS_UP_TO, URLB_DOMAINS, BenchmarkReport, published_aggregates
-from sb3_cic.report.figures import LEARNING_CURVES, aggregates_name
-from sb3_cic.report.scores import METRICS, describe_pairing
+from sb3_cic.report.benchmark import ALL_12, EXACT_PERMUTATIONS_UP_TO, URLB_DOMAINS, BenchmarkReport
+from sb3_cic.report.figures import DOMAINS, LEARNING_CURVES, VERSUS_PUBLISHED, aggregates_name
+from sb3_cic.report.scores import METRICS, PAIRING_KINDS, describe_pairing
 from sb3_cic.report.study_report import StudyReport
-from sb3_cic.report.text import fmt, pm
+from sb3_cic.report.text import fmt, pm, short_name
+from sb3_cic.report.verdicts import WORDS
+
+#: how the report names each pre-training kind (:func:`~sb3_cic.report.scores.pairing_kind`)
+KIND_WORDS: dict[str, str] = {
+    "paired": "paired (from the pre-training of the same seed)",
+    "shared": "from another seed's pre-training (not paired)",
+    "from_scratch": "from scratch",
+    "unknown": "pre-training seed unknown (not paired)",
+}
 
 
 def _study_tables(report: StudyReport) -> list[str]:
@@ -122,20 +130,18 @@ def render_study(report: StudyReport) -> str:
     return "\n".join(lines) + "\n"
 
 
-def short_name(study: str | Path) -> str:
-    """A study folder's name for the report: its last two path components (``quadruped_reduced/runs``)."""
-    return "/".join(Path(study).resolve().parts[-2:])
-
-
-def aggregate_table(aggregates: dict[str, dict[str, dict[str, float]]], tasks: Sequence[str], n_runs: dict[str, int]) -> list[str]:
-    """Our four statistics beside the published ones, one row per method, best IQM first."""
+def aggregate_table(
+    aggregates: dict[str, dict[str, dict[str, float]]], published: dict[str, dict[str, tuple[float | None, str]]],
+    n_runs: dict[str, int],
+) -> list[str]:
+    """Our four statistics beside the published ones (``{label: {metric: (value, source)}}``), one row per method,
+    best IQM first."""
     lines = ["| method | runs | " + " | ".join(f"{m} ours | {m} published" for m in METRICS) + " |"]
     lines.append("|---|---:|" + "---:|---:|" * len(METRICS))
     for label, agg in sorted(aggregates.items(), key=lambda item: -item[1]["IQM"]["point"]):
-        published = published_aggregates(label, tasks)
         cells = []
         for metric in METRICS:
-            ours, (value, source) = agg[metric], published[metric]
+            ours, (value, source) = agg[metric], published[label][metric]
             interval = "" if ours["low"] == ours["high"] else f" [{fmt(ours['low'])}, {fmt(ours['high'])}]"
             cells.append(f"{fmt(ours['point'])}{interval}")
             cells.append(f"{fmt(value)}" + (" (T6)" if source == "Table 6" else ""))
@@ -166,19 +172,21 @@ def _agreement_table(agreement: dict[str, dict[str, Any] | None], reps: int) -> 
         "Spearman's rank correlation of the mean normalised scores. p (permutation): the share of re-orderings of our "
         f"means that agree with Table 6 at least as well (one-sided; every re-ordering up to {EXACT_PERMUTATIONS_UP_TO} "
         f"methods, else {5 * reps} random ones). Methods interval: 95% over resamples of the "
-        "methods. Seeds interval: 95% over resamples of each method's seeds per task, the methods fixed (– with one seed).",
+        "methods. Seeds interval: 95% over resamples of each method's seeds per task, the methods fixed (– with one seed). "
+        "Methods and runs: 95% over resamples of the methods and, within each, of its runs per task, together.",
         "",
-        "| tasks | methods | Spearman | p (permutation) | methods interval | seeds interval |",
-        "|---|---:|---:|---:|---:|---:|",
+        "| tasks | methods | Spearman | p (permutation) | methods interval | seeds interval | methods and runs |",
+        "|---|---:|---:|---:|---:|---:|---:|",
     ]
     for name, row in agreement.items():
         if row is None:
-            lines.append(f"| {name} | – | – | – | – | – |")
+            lines.append(f"| {name} | – | – | – | – | – | – |")
             continue
         seeds_interval = "–" if row["seeds_low"] is None else f"[{fmt(row['seeds_low'])}, {fmt(row['seeds_high'])}]"
         lines.append(
             f"| {name} | {len(row['methods'])} | {fmt(row['rho'])} | {fmt(row['p_permutation'])} | "
-            f"[{fmt(row['methods_low'])}, {fmt(row['methods_high'])}] | {seeds_interval} |"
+            f"[{fmt(row['methods_low'])}, {fmt(row['methods_high'])}] | {seeds_interval} | "
+            f"[{fmt(row['joint_low'])}, {fmt(row['joint_high'])}] |"
         )
     return lines
 
@@ -193,8 +201,70 @@ def _over_the_12_tasks(report: BenchmarkReport) -> list[str]:
         "Table 5's value, or (T6) the median and mean of Table 6's per-task means (exact); – not published.",
         "",
     ]
-    lines += aggregate_table(report.aggregates, URLB_TASKS, report.runs)
+    lines += aggregate_table(report.aggregates, report.published[ALL_12], report.runs)
     return lines + ["", f"![aggregates]({aggregates_name(0)})", ""]
+
+
+def _runs_read(report: BenchmarkReport) -> list[str]:
+    """What each study counted, the pre-training of its final-snapshot fine-tunings, and the runs left out."""
+    lines = ["## Runs read (before the seeds were chosen)", ""]
+    lines += [f"- `{short_name(study)}`: {line}" for study, described in report.gathered.runs_read.items() for line in described]
+    for study, kinds in report.gathered.kinds.items():
+        counts = ", ".join(f"{kinds.get(kind, 0)} {KIND_WORDS[kind]}" for kind in PAIRING_KINDS)
+        lines.append(f"- `{short_name(study)}`: pre-training of its fine-tunings of the final snapshot: {counts}")
+    lines += ["", f"Counted at seeds {', '.join(map(str, report.seeds))}: {len(report.results)} runs, each paired (fine-tuned "
+              "from the pre-training of its own seed) or from scratch."]
+    groups: dict[tuple, list[str]] = {}
+    for run in report.gathered.left_out:
+        groups.setdefault((short_name(run["study"]), run["label"], run["seed"], run["pretrain_seed"]), []).append(run["task"])
+    if groups:
+        lines += [f"Left out of every table and figure ({len(report.gathered.left_out)} runs at these seeds, not paired):", ""]
+        lines += [f"- `{study}`: {label} seed {seed} from the pre-training of seed {'unknown' if pre is None else pre} "
+                  f"({len(tasks)} task{'s' if len(tasks) > 1 else ''})" for (study, label, seed, pre), tasks in groups.items()]
+    return lines + [""]
+
+
+def _versus_published(report: BenchmarkReport) -> list[str]:
+    """Per method and domain, our mean normalised score beside Table 6's, and its figure."""
+    if not report.versus_published:
+        return []
+    domains = list(dict.fromkeys(row["domain"] for row in report.versus_published))
+    cells = {(row["method"], row["domain"]): f"{fmt(row['ours'])} / {fmt(row['published'])}" for row in report.versus_published}
+    lines = ["## Ours against Table 6, per domain", "",
+             "Mean normalised score over the domain's tasks (each task's mean over runs): ours / Table 6's.", "",
+             "| method | " + " | ".join(domains) + " |", "|---|" + "---:|" * len(domains)]
+    for label in sorted({row["method"] for row in report.versus_published}):
+        lines.append(f"| {label} | " + " | ".join(cells.get((label, d), "–") for d in domains) + " |")
+    return lines + ["", f"![ours against published]({VERSUS_PUBLISHED})", ""]
+
+
+def _differences(differences: dict[str, Any] | None) -> list[str]:
+    """Per method and task, how much a second pre-training (and its fine-tuning) moves the final return."""
+    if differences is None:
+        return []
+    first, second = differences["seeds"]
+    labels = sorted(differences["returns"])
+    lines = [f"## How much does a second pre-training move a score? (seed {second} minus seed {first})", "",
+             f"Final return of the run of seed {second} minus that of seed {first}, each fine-tuned from the pre-training "
+             "of its own seed (DDPG: two runs from scratch). Last row: the mean absolute difference of normalised scores.",
+             "", "| task | " + " | ".join(labels) + " |", "|---|" + "---:|" * len(labels)]
+    for task in URLB_TASKS:
+        row = [differences["returns"][label].get(task) for label in labels]
+        lines.append(f"| {task} | " + " | ".join("–" if d is None else f"{d:+.1f}" for d in row) + " |")
+    lines.append("| mean abs. (normalised) | " + " | ".join(fmt(differences["normalised"].get(label)) for label in labels) + " |")
+    return lines + [""]
+
+
+def _verdicts(report: BenchmarkReport) -> list[str]:
+    """Each claim with its word and its figures."""
+    lines = ["## The seed's claims, and MOSS above CIC", "",
+             "Holds: the intervals do not overlap, on the claim's side; does not hold: they do not overlap, on the other "
+             "side; undecided: they overlap (the order: Spearman's interval over the methods and runs against 0). A "
+             "statistic shown without an interval is a method's with one run per task: its interval is a point, and a "
+             "verdict on it rests on one draw.", ""]
+    lines += [f"- {v['claim']}: **{v['word']}** ({v['figures']})." for v in report.verdicts]
+    counts = ", ".join(f"{sum(v['word'] == word for v in report.verdicts)} {word}" for word in WORDS)
+    return lines + ["", f"Verdicts: {counts}.", ""]
 
 
 def render_benchmark(report: BenchmarkReport) -> str:
@@ -206,10 +276,7 @@ def render_benchmark(report: BenchmarkReport) -> str:
         f"{', '.join(map(str, report.seeds))}. Final return = the last evaluation's mean return; normalised score = "
         "return / expert score.",
         "",
-        "## Runs read (before the seeds were chosen)",
-        "",
-        *[f"- `{short_name(study)}`: {line}" for study, described in report.runs_read.items() for line in described],
-        "",
+        *_runs_read(report),
         "## Per task, beside Table 6",
         "",
         "Ours: mean final return over seeds (n); Table 6: mean ± standard error over 10 seeds (2M pre-training, full size).",
@@ -218,7 +285,13 @@ def render_benchmark(report: BenchmarkReport) -> str:
     lines += _per_task_beside_table6(report.returns) + _over_the_12_tasks(report)
     lines += ["## Per domain (Figure 8's view)", ""]
     for domain, agg in report.domains.items():
-        lines += [f"### {domain}", ""] + aggregate_table(agg, URLB_DOMAINS[domain], report.domain_runs[domain]) + [""]
-    lines += _agreement_table(report.rank_agreement, report.reps)
-    lines += ["", "## The seed's claims at this scale (point estimates)", ""] + [f"- {line}" for line in report.claims] + [""]
+        lines += [f"### {domain}", ""] + aggregate_table(agg, report.published[domain], report.domain_runs[domain]) + [""]
+    if len(report.domains) == len(URLB_DOMAINS):
+        lines += [f"![IQM per domain]({DOMAINS})", ""]
+    if report.curves:
+        lines += ["### Learning curves per domain", "", "Mean normalised score over the domain's tasks against fine-tuning "
+                  "steps: the mean over the runs, shaded from the lowest run to the highest.", "",
+                  f"![learning curves per domain]({LEARNING_CURVES})", ""]
+    lines += _versus_published(report) + _agreement_table(report.rank_agreement, report.reps) + [""]
+    lines += _differences(report.differences) + _verdicts(report)
     return "\n".join(lines)
