@@ -127,26 +127,29 @@ def test_seed_interval_with_several_seeds_and_seed_filter(tmp_path):
 
 def test_only_paired_and_from_scratch_runs_are_counted_and_the_others_said(tmp_path):
     """A fine-tuning of seed 1 from the pre-training of seed 0 (the CIC code's shared protocol) is counted as read,
-    named and left out of every number; the paired seed 1 and DDPG's seed 1 from scratch are counted."""
+    named and left out of every number, also where a paired run of the same method, task and seed is counted from
+    another study; the paired seed 1 and DDPG's seed 1 from scratch are counted."""
     shared, paired = tmp_path / "shared", tmp_path / "paired"
-    for task in ("walker_stand", "walker_walk"):
+    tasks = ("walker_stand", "walker_walk")
+    for task in tasks:
         write_run(shared, "cic", task, 0, 900.0)
         write_run(shared, "cic", task, 1, 100.0, pretrain_seed=0)  # shared: never paired
         write_run(shared, "ddpg", task, 1, 500.0)
         write_run(paired, "apt", task, 1, 800.0)
+    write_run(paired, "cic", "walker_stand", 1, 700.0)  # the paired seed 1 of one task
     gathered = pairs.gather_results([shared, paired], seeds=[0, 1])
-    assert gathered.kinds == {str(shared): {"paired": 2, "shared": 2, "from_scratch": 2}, str(paired): {"paired": 2}}
+    assert gathered.kinds == {str(shared): {"paired": 2, "shared": 2, "from_scratch": 2}, str(paired): {"paired": 3}}
     assert sorted((r["label"], r["task"], r["seed"]) for r in gathered.results) == sorted(
-        [("cic", t, 0) for t in ("walker_stand", "walker_walk")] + [(m, t, 1) for m in ("ddpg", "apt") for t in ("walker_stand", "walker_walk")]
+        [("cic", t, 0) for t in tasks] + [("cic", "walker_stand", 1)] + [(m, t, 1) for m in ("ddpg", "apt") for t in tasks]
     )
     assert [(r["label"], r["seed"], r["pretrain_seed"]) for r in gathered.left_out] == [("cic", 1, 0)] * 2
     report = write_benchmark_report([shared, paired], tmp_path / "out", reps=20)
-    assert report["returns"]["cic"] == {"walker_stand": [900.0], "walker_walk": [900.0]}  # seed 1's 100 never mixed in
+    assert report["returns"]["cic"] == {"walker_stand": [900.0, 700.0], "walker_walk": [900.0]}  # the shared 100 never mixed in
     text = (tmp_path / "out" / "report.md").read_text()
     assert (f"- `{tmp_path.name}/shared`: pre-training of its fine-tunings of the final snapshot: 2 paired (from the "
             "pre-training of the same seed), 2 from another seed's pre-training (not paired), 2 from scratch, 0 "
             "pre-training seed unknown (not paired)") in text
-    assert "Counted at seeds 0, 1: 6 runs" in text
+    assert "Counted at seeds 0, 1: 7 runs" in text
     assert f"- `{tmp_path.name}/shared`: cic seed 1 from the pre-training of seed 0 (2 tasks)" in text
     only_0 = pairs.gather_results([shared], seeds=[0])
     assert only_0.left_out == [] and only_0.kinds[str(shared)]["shared"] == 2  # counted as read, before the seeds
