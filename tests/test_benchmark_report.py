@@ -250,3 +250,15 @@ def test_spearman_rows_is_scipys():
     expected = [spearmanr(row, y).statistic for row in x]
     np.testing.assert_allclose(benchmark.spearman_rows(x, y), expected)
     np.testing.assert_allclose(benchmark.spearman_rows(x, x[::-1])[:3], [spearmanr(a, b).statistic for a, b in zip(x[:3], x[::-1][:3])])
+
+
+def test_a_partial_benchmark_draws_only_the_figures_it_has_numbers_for(tmp_path):
+    """One method on walker alone: no 12-task aggregate and no Figure 8 view, but its walker curve and its walker
+    point against Table 6."""
+    for task in benchmark.URLB_DOMAINS["walker"]:
+        write_run(tmp_path / "s", "cic", task, 0, 500.0)
+    report = write_benchmark_report([tmp_path / "s"], tmp_path / "out", reps=20)
+    assert report["aggregates"] == {} and list(report["domains"]) == ["walker"] and report["verdicts"] == []
+    assert sorted(path.name for path in (tmp_path / "out").glob("*.png")) == ["learning_curves.png", "versus_published.png"]
+    assert [(row["method"], row["domain"]) for row in report["versus_published"]] == [("cic", "walker")]
+    assert "No method has results on all 12 tasks yet." in (tmp_path / "out" / "report.md").read_text()
