@@ -1,5 +1,6 @@
 """The reports as markdown, written from the report objects (:class:`~sb3_cic.report.study_report.StudyReport`,
-:class:`~sb3_cic.report.benchmark.BenchmarkReport`); nothing is computed here."""
+:class:`~sb3_cic.report.benchmark.BenchmarkReport`); nothing is computed here beyond the mean of the runs a cell
+shows."""
 
 from __future__ import annotations
 
