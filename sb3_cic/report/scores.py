@@ -260,9 +260,10 @@ def published_comparison(results: list[dict[str, Any]], reps: int = 2000, seed: 
     rows = _published_rows(scores)
     if not rows:
         return None
-    # the rank correlation over the Table 6 methods of the most common task set
+    # the rank correlation over the Table 6 methods of the most common task set (a tie: the most tasks, then the
+    # first in sorted order, whatever the order of a set)
     sets = [tuple(r["tasks"]) for r in rows if r["source"] == "Table 6"]
-    common = max(set(sets), key=sets.count) if sets else ()
+    common = max(sorted(set(sets)), key=lambda t: (sets.count(t), len(t))) if sets else ()
     ranked = [r for r in rows if r["source"] == "Table 6" and tuple(r["tasks"]) == common]
     out: dict[str, Any] = {"tasks": list(common), "methods": rows, "ranked": [r["method"] for r in ranked]}
     out["spearman"] = out["low"] = out["high"] = None
