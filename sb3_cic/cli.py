@@ -6,9 +6,9 @@
 * ``enjoy``, ``record-video``: rl_zoo3's scripts with our algorithms registered;
 * ``protocol``: the URLB protocol for one method and domain, in this process (:mod:`sb3_cic.study.driver`);
 * ``study``, ``status``: the whole study on Ray and its state (:mod:`sb3_cic.study`);
-* ``report``: the score report of a study (:mod:`sb3_cic.evaluation`);
+* ``report``: the score report of a study (:mod:`sb3_cic.report`);
 * ``benchmark-report``: URLB's 12 tasks over several studies beside the CIC paper's Tables 5 and 6
-  (:mod:`sb3_cic.benchmark`);
+  (:mod:`sb3_cic.report.benchmark`);
 * ``skills``: a pre-trained policy under several skills, as one grid video and a plot (:mod:`sb3_cic.skill_video`).
 
 Options ``train`` and ``finetune`` add to rl-zoo's: ``--small`` (CPU-sized hyperparameters,
@@ -584,11 +584,11 @@ def _run(command: str, argv: list[str]) -> int:
 
         return (study_cli.main if command == "study" else study_cli.status_main)(argv)
     elif command == "report":
-        from sb3_cic.evaluation import main as report_main
+        from sb3_cic.report.commands import report_main
 
         report_main(argv)
     elif command == "benchmark-report":
-        from sb3_cic.benchmark import main as benchmark_main
+        from sb3_cic.report.commands import benchmark_main
 
         benchmark_main(argv)
     elif command == "skills":

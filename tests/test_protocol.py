@@ -21,8 +21,8 @@ import yaml
 
 from sb3_cic.cli import main
 from sb3_cic.constants import EXPERT_SCORES
-from sb3_cic import evaluation
-from sb3_cic.evaluation import write_report
+from sb3_cic.report import figures, scores
+from sb3_cic.report.commands import write_report
 from sb3_cic.study.driver import run_protocol
 from sb3_cic.study.settings import Settings
 from sb3_cic.study.settings_record import check_study_settings, conf_file_record, record_study_settings
@@ -192,14 +192,14 @@ def test_comparisons_give_each_task_set_its_methods():
     results = [run("cic", t, s, 0.1 * s + (t == "b")) for t in "ab" for s in (0, 1)]
     results += [run("ddpg", t, s, 0.2) for t in "ab" for s in (0, 1)] + [run("cic@100", "b", s, 0.5) for s in (0, 1)]
     # an early snapshot fine-tuned on task b only does not shrink the main comparison to b
-    assert evaluation.comparisons(results) == [(["a", "b"], ["cic", "ddpg"]), (["b"], ["cic", "cic@100", "ddpg"])]
+    assert scores.comparisons(results) == [(["a", "b"], ["cic", "ddpg"]), (["b"], ["cic", "cic@100", "ddpg"])]
     results.append(run("ddpg", "c", 0, 0.9))  # a method alone on its task set is no comparison
-    assert evaluation.comparisons(results) == [(["a", "b"], ["cic", "ddpg"]), (["b"], ["cic", "cic@100", "ddpg"])]
+    assert scores.comparisons(results) == [(["a", "b"], ["cic", "ddpg"]), (["b"], ["cic", "cic@100", "ddpg"])]
     disjoint = [run("cic", "a", 0, 0.1), run("ddpg", "b", 0, 0.2)]
-    assert evaluation.comparisons(disjoint) == [(["a"], ["cic"]), (["b"], ["ddpg"])]
-    everything, _, seeds_all = evaluation.score_matrices(results)
+    assert scores.comparisons(disjoint) == [(["a"], ["cic"]), (["b"], ["ddpg"])]
+    everything, _, seeds_all = scores.score_matrices(results)
     assert seeds_all["ddpg"] == [0] and everything["ddpg"].shape == (1, 3)  # task c has seed 0 only
-    matrices, tasks_of, seeds_of = evaluation.score_matrices(results, ["a", "b"])
+    matrices, tasks_of, seeds_of = scores.score_matrices(results, ["a", "b"])
     assert tasks_of["cic"] == tasks_of["ddpg"] == ["a", "b"] and seeds_of["ddpg"] == [0, 1]
     np.testing.assert_allclose(matrices["cic"], [[0.0, 1.0], [0.1, 1.1]])
 
@@ -209,13 +209,13 @@ def test_bootstrap_intervals_are_reproducible():
     matrices = {"cic": rng.random((5, 3)), "ddpg": rng.random((5, 3))}
     np.random.seed(7)
     outside = np.random.get_state()[1].copy()
-    first = evaluation.aggregate_scores(matrices, reps=300, seed=0)
+    first = scores.aggregate_scores(matrices, reps=300, seed=0)
     np.testing.assert_array_equal(np.random.get_state()[1], outside)  # NumPy's global generator is left as it was
     np.random.rand(10)  # a draw in between changes nothing
-    assert evaluation.aggregate_scores(matrices, reps=300, seed=0) == first
+    assert scores.aggregate_scores(matrices, reps=300, seed=0) == first
     # a method's interval does not depend on the other methods of the report
-    assert evaluation.aggregate_scores({"ddpg": matrices["ddpg"]}, reps=300, seed=0)["ddpg"] == first["ddpg"]
-    other = evaluation.aggregate_scores(matrices, reps=300, seed=1)
+    assert scores.aggregate_scores({"ddpg": matrices["ddpg"]}, reps=300, seed=0)["ddpg"] == first["ddpg"]
+    other = scores.aggregate_scores(matrices, reps=300, seed=1)
     assert other["cic"]["IQM"]["point"] == first["cic"]["IQM"]["point"]
     assert other["cic"]["IQM"]["low"] != first["cic"]["IQM"]["low"]  # the seed drives the resampling
 
@@ -223,7 +223,7 @@ def test_bootstrap_intervals_are_reproducible():
 
 def test_learning_curves_tell_eleven_methods_apart():
     # the quadruped study plots twelve labels: matplotlib's ten colours alone would repeat two of them
-    styles = [evaluation.line_style(i) for i in range(40)]
+    styles = [figures.line_style(i) for i in range(40)]
     assert len(set(styles)) == 40 and styles[0] == ("C0", "-") and styles[10] == ("C0", "--")
 
 #: the command line of SETTINGS' fine-tuning settings (a run from scratch uses no pre-training setting)
@@ -337,7 +337,7 @@ def test_published_comparison_against_table_6():
                for m in methods for t in tasks for s in range(3)]
     results += [_synthetic("cic@100000", t, 0, 0.0) for t in tasks]  # an intermediate snapshot: not compared
     results += [_synthetic("moss", "quadruped_stand", s, 0.5) for s in range(2)]
-    out = evaluation.published_comparison(results, reps=200)
+    out = scores.published_comparison(results, reps=200)
     rows = {r["method"]: r for r in out["methods"]}
     assert set(rows) == {*methods, "moss"} and rows["moss"]["source"] == "MOSS"
     assert rows["moss"]["published"] == pytest.approx(MOSS_PUBLISHED_RETURNS["moss"]["quadruped_stand"][0] / 920)
@@ -348,4 +348,4 @@ def test_published_comparison_against_table_6():
     # the opposite order: -1
     order = sorted(methods, key=published.get)
     flipped = [dict(r, final_normalized_score=order.index(r["label"]) * -0.1) for r in results if r["label"] in methods]
-    assert evaluation.published_comparison(flipped, reps=50)["spearman"] == pytest.approx(-1.0)
+    assert scores.published_comparison(flipped, reps=50)["spearman"] == pytest.approx(-1.0)

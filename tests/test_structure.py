@@ -12,8 +12,9 @@ The layers, from the bottom:
   ``sb3_cic.envs`` (the repository's ``envs/``);
 * the study layer: ``sb3_cic.study`` and ``sb3_cic.protocol``, the run code that the study and
   ``sb3-cic protocol`` share (``protocol`` belongs to the study layer: a run checkpoints itself with
-  ``sb3_cic.study.checkpoint`` and lays out its folder with ``sb3_cic.study.layout``), and the reports over a
-  study's runs, ``sb3_cic.evaluation`` and ``sb3_cic.benchmark``, which read the runs its record lists;
+  ``sb3_cic.study.checkpoint`` and lays out its folder with ``sb3_cic.study.layout``); a run's result is read
+  and checked here (``sb3_cic.study.run_result``, ``sb3_cic.study.results``);
+* the reports over a study's runs, ``sb3_cic.report``, which read the runs that the study's records count;
 * the entry points: ``sb3_cic.cli`` (every command) and ``sb3_cic.demo`` (``make demo``).
 
 A layer imports its own and the layers below, never those above.
@@ -28,7 +29,9 @@ ROOT = Path(__file__).resolve().parents[1]
 #: each package's dotted name and its folder in the repository (``envs/`` is installed as ``sb3_cic.envs``)
 PACKAGES = {"sb3_cic": "sb3_cic", "sb3_cic.envs": "envs"}
 #: the study layer (see the module docstring)
-STUDY = ("sb3_cic.study", "sb3_cic.protocol", "sb3_cic.evaluation", "sb3_cic.benchmark")
+STUDY = ("sb3_cic.study", "sb3_cic.protocol")
+#: the reports (see the module docstring)
+REPORT = ("sb3_cic.report",)
 #: the entry points, above everything
 ENTRY_POINTS = ("sb3_cic.cli", "sb3_cic.demo")
 
@@ -130,11 +133,10 @@ def cycle_through(component: list[str], graph: dict[str, set[str]]) -> list[str]
 
 
 def layer(module: str) -> int:
-    """0: the library, 1: the study layer, 2: the entry points."""
-    if any(module == name or module.startswith(f"{name}.") for name in ENTRY_POINTS):
-        return 2
-    if any(module == name or module.startswith(f"{name}.") for name in STUDY):
-        return 1
+    """0: the library, 1: the study layer, 2: the reports, 3: the entry points."""
+    for floor, names in ((3, ENTRY_POINTS), (2, REPORT), (1, STUDY)):
+        if any(module == name or module.startswith(f"{name}.") for name in names):
+            return floor
     return 0
 
 
@@ -161,7 +163,8 @@ def test_no_import_cycle():
 
 
 def test_imports_go_downward_only():
-    """The library never imports the study layer or an entry point, and the study layer no entry point."""
+    """The library never imports the study layer, a report or an entry point, the study layer no report or entry
+    point, a report no entry point."""
     graph = import_graph()
     upward = sorted(f"{m} -> {t}" for m, targets in graph.items() for t in targets if layer(t) > layer(m))
     assert not upward, f"imports of a layer above: {upward}"
@@ -174,5 +177,19 @@ def test_the_library_does_not_import_the_study():
     offenders = sorted(
         f"{m} -> {t}" for m, targets in graph.items() for t in targets
         if layer(m) == 0 and (t == "sb3_cic.study" or t.startswith("sb3_cic.study."))
+    )
+    assert not offenders, offenders
+
+
+def test_no_private_import_across_modules():
+    """A module imports no private name (``_fmt``) of another module of the tree: what two rooms share is public."""
+    modules = module_files()
+    offenders = sorted(
+        f"{name} imports {_resolve(name, path, node)}.{alias.name}"
+        for name, path in modules.items()
+        for node in ast.walk(ast.parse(path.read_text(), str(path)))
+        if isinstance(node, ast.ImportFrom) and _resolve(name, path, node).startswith("sb3_cic")
+        for alias in node.names
+        if alias.name.startswith("_") and not alias.name.startswith("__")
     )
     assert not offenders, offenders

@@ -19,8 +19,9 @@ from pathlib import Path
 import pytest
 import torch as th
 
-from sb3_cic.evaluation import load_results, write_report
 from sb3_cic.protocol import finetune
+from sb3_cic.report.commands import write_report
+from sb3_cic.report.scores import load_results
 from sb3_cic.study.driver import run_protocol
 from sb3_cic.study.settings import Settings
 from sb3_cic.study.checkpoint import RunFolder

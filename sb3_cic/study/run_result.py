@@ -1,7 +1,7 @@
 """A run's own files, read and checked: the ``result.json`` of a done run and a fine-tuning's ``eval.csv``.
 
 The study's records (:mod:`sb3_cic.study.results`, :mod:`sb3_cic.study.graph`) and the reports
-(:mod:`sb3_cic.evaluation`, :mod:`sb3_cic.benchmark`) read a run through :func:`read_run_result`.
+(:mod:`sb3_cic.report`) read a run through :func:`read_run_result`.
 """
 
 from __future__ import annotations

@@ -1,0 +1,100 @@
+"""Which fine-tunings a paired report counts, and how much a second pre-training moves a score.
+
+URLB's protocol pairs fine-tuning seed s with the pre-training of seed s. A study of the CIC code's protocol
+fine-tunes several seeds from one shared pre-training (its seeds 1 and 2 come from the pre-training of seed 0):
+such runs are no draw of a second pre-training and are never counted beside the paired ones
+(:func:`gather_results`). :func:`pretraining_differences` gives, per method and task, the difference between two
+paired draws.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Sequence
+
+from sb3_cic.report.scores import pairing_kind
+
+#: the pre-training kinds (:func:`~sb3_cic.report.scores.pairing_kind`) that a paired report counts
+COUNTED_KINDS: tuple[str, ...] = ("paired", "from_scratch")
+
+
+@dataclass
+class Gathered:
+    """The fine-tunings of several studies that a paired report counts, and what it read.
+
+    :param results: the counted results (final snapshots, the seeds asked for, paired or from scratch)
+    :param runs_read: ``{study: lines}``, how many runs of which kind each study counted
+        (:meth:`~sb3_cic.study.results.StudyResults.describe`)
+    :param kinds: ``{study: {pre-training kind: runs}}`` of its final-snapshot fine-tunings, before the seeds were chosen
+    :param left_out: the runs of the seeds asked for that are neither paired nor from scratch: each one's study,
+        label, task, seed and pre-training seed
+    """
+
+    results: list[dict[str, Any]] = field(default_factory=list)
+    runs_read: dict[str, list[str]] = field(default_factory=dict)
+    kinds: dict[str, dict[str, int]] = field(default_factory=dict)
+    left_out: list[dict[str, Any]] = field(default_factory=list)
+
+
+def gather_results(studies: Sequence[str | Path], seeds: Sequence[int] | None = None) -> Gathered:
+    """The fine-tuning results of several study folders that a paired report counts: final snapshots only (no
+    ``label@step``), ``seeds`` only, and only runs fine-tuned from the pre-training of their own seed or from scratch
+    (:data:`COUNTED_KINDS`); each study's runs of each kind are counted and the others named in ``left_out``. Each
+    study's results are those it counts (:func:`sb3_cic.study.results.study_results`: the runs of its record, each
+    checked; a run folder that disagrees is a one-line warning and not counted).
+
+    :param studies: study folders
+    :param seeds: fine-tuning seeds to keep (None: all)
+    :raises ValueError: a folder without results, or one (label, task, seed) in two folders
+    """
+    from sb3_cic.study.results import study_results
+
+    out, origin = Gathered(), {}
+    for study in studies:
+        counted = study_results(study)
+        out.runs_read[str(study)] = counted.describe()
+        if not counted.results:
+            raise ValueError(f"no fine-tuning results under {Path(study) / 'finetune'}")
+        finals = [r for r in counted.results if "@" not in r["label"]]
+        out.kinds[str(study)] = dict(Counter(pairing_kind(r) for r in finals))
+        for result in finals:
+            if seeds is not None and result["seed"] not in seeds:
+                continue
+            if pairing_kind(result) not in COUNTED_KINDS:
+                out.left_out.append({"study": str(study), **{key: result[key] for key in ("label", "task", "seed", "pretrain_seed")}})
+                continue
+            key = (result["label"], result["task"], result["seed"])
+            if key in origin:
+                raise ValueError(f"{key} is in both {origin[key]} and {study}: give each run once")
+            origin[key] = str(study)
+            result["study"] = str(study)
+            out.results.append(result)
+    return out
+
+
+def pretraining_differences(results: list[dict[str, Any]]) -> dict[str, Any] | None:
+    """Per method and task, the final return of the second seed minus the first's (two paired pre-trainings and their
+    fine-tunings; from scratch, two runs), and per method the mean absolute difference of the normalised scores.
+
+    :param results: counted results (:func:`gather_results`)
+    :return: ``{"seeds": [first, second], "returns": {label: {task: difference}}, "normalised": {label: mean |diff|}}``,
+        None with fewer than two seeds
+    """
+    seeds = sorted({r["seed"] for r in results})
+    if len(seeds) < 2:
+        return None
+    first, second = seeds[:2]
+    by_run = {(r["label"], r["task"], r["seed"]): r for r in results}
+    returns: dict[str, dict[str, float]] = {}
+    normalised: dict[str, list[float]] = {}
+    for (label, task, seed), result in sorted(by_run.items()):
+        other = by_run.get((label, task, first))
+        if seed != second or other is None:
+            continue
+        returns.setdefault(label, {})[task] = float(result["final_return"] - other["final_return"])
+        if result["final_normalized_score"] is not None and other["final_normalized_score"] is not None:
+            normalised.setdefault(label, []).append(abs(result["final_normalized_score"] - other["final_normalized_score"]))
+    return {"seeds": [first, second], "returns": returns,
+            "normalised": {label: float(sum(v) / len(v)) for label, v in normalised.items()}}
