@@ -48,16 +48,8 @@ from typing import Any, Iterator, NoReturn, Sequence
 
 import gymnasium as gym
 
-from sb3_cic.common.arguments import (
-    POSITIVE_INT,
-    SEED,
-    STEPS,
-    Range,
-    argument_parser,
-    check_device_available,
-    device_type,
-    option_type,
-)
+from sb3_cic.command_line import argument_parser, check_device_available, device_type, option_type
+from sb3_cic.common.arguments import POSITIVE_INT, SEED, STEPS, Range
 from sb3_cic.study.cli import small_help
 
 USAGE = """usage: sb3-cic {demo,train,finetune,enjoy,record-video,protocol,study,status,report,benchmark-report,skills}

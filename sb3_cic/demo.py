@@ -28,7 +28,8 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from sb3_cic.common.arguments import NON_NEGATIVE_INT, POSITIVE_INT, SEED, argument_parser, option_type
+from sb3_cic.command_line import argument_parser, option_type
+from sb3_cic.common.arguments import NON_NEGATIVE_INT, POSITIVE_INT, SEED
 from sb3_cic.constants import EXPERT_SCORES
 from sb3_cic.study.settings import Settings
 

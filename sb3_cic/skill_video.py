@@ -20,7 +20,8 @@ from typing import TYPE_CHECKING, Any, Sequence
 import gymnasium as gym
 import numpy as np
 
-from sb3_cic.common.arguments import POSITIVE_INT, SEED, Range, argument_parser, option_type
+from sb3_cic.command_line import argument_parser, option_type
+from sb3_cic.common.arguments import POSITIVE_INT, SEED, Range
 
 if TYPE_CHECKING:  # torch loads with the snapshot, not with ``sb3-cic skills --help``
     from sb3_cic.ddpg import URLBDDPG

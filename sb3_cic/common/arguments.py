@@ -7,7 +7,7 @@ Each range sits beside what it validates: :class:`~sb3_cic.ddpg.URLBDDPG`'s argu
 ``parameter_ranges`` (:func:`ranges_of` merges a class's with its parents'), the protocol settings in
 :class:`~sb3_cic.study.settings.Settings`, each command's own options beside the option. This module holds the
 shared bounds (:data:`POSITIVE_INT`, :data:`STEPS`, :data:`SEED`...) and imports nothing heavy (no torch, no
-gymnasium): the command line builds its parsers and prints ``--help`` with it alone.
+gymnasium): the command line (:mod:`sb3_cic.command_line`) builds its parsers and prints ``--help`` with it alone.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ import inspect
 import math
 import numbers
 from dataclasses import dataclass
-from typing import Any, Callable, Iterable
+from typing import Any, Iterable
 
 #: the largest seed (numpy's ``SeedSequence`` and Gymnasium take seeds in [0, 2**32 - 1])
 MAX_SEED = 2**32 - 1
@@ -125,9 +125,6 @@ class Flag:
 #: the range of a bool argument
 FLAG = Flag()
 
-#: the options the report commands name (``--reps``, ``--seed``, ``--seeds`` of ``sb3-cic report`` and
-#: ``benchmark-report``), for :func:`option_type`; every other command's options give their range beside them
-OPTION_RANGES: dict[str, Range] = {"reps": POSITIVE_INT, "seed": SEED, "seeds": SEED}
 
 
 def ranges_of(cls: type, attribute: str = "parameter_ranges") -> dict[str, Range | Flag]:
@@ -232,74 +229,3 @@ def parameter_default(func: Any, name: str) -> Any:
     if default is inspect.Parameter.empty:
         raise ValueError(f"{getattr(func, '__name__', func)}'s {name} has no default")
     return default
-
-
-# the command line ---------------------------------------------------------------------------------
-def option_type(bound: Range | str) -> Callable[[str], int | float]:
-    """The argparse ``type`` of an option whose value has the range ``bound``.
-
-    :param bound: the range, or the name of one of :data:`OPTION_RANGES` (``"reps"`` for ``--reps``)
-    """
-    bound = OPTION_RANGES[bound] if isinstance(bound, str) else bound
-    parse = bound.parse
-
-    def convert(text: str) -> int | float:
-        return parse(text)
-
-    convert.__name__ = "int" if bound.integer else "float"  # what argparse would name the type in an error of its own
-    return convert
-
-
-def device_type(text: str) -> str:
-    """The argparse ``type`` of ``--device``: ``auto`` (SB3's: CUDA when there is one) or a string ``torch.device``
-    reads (``cpu``, ``cuda``, ``cuda:1``...); torch is imported only for the latter."""
-    if text == "auto":
-        return text
-    import torch as th
-
-    try:
-        th.device(text)
-    except RuntimeError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a torch device (auto, cpu, cuda, cuda:1...)") from None
-    return text
-
-
-def check_device_available(device: str) -> None:
-    """``ValueError`` when ``device`` asks for CUDA (``cuda``, ``cuda:1``) and torch sees no CUDA device here: SB3 would
-    train on the CPU without a word. ``auto`` and ``cpu`` are not checked (torch is not imported for them).
-
-    :param device: a value of ``--device`` (:func:`device_type`)
-    """
-    if not device.startswith("cuda"):
-        return
-    import torch as th
-
-    index = th.device(device).index
-    if not th.cuda.is_available():
-        raise ValueError(f"--device {device}: torch sees no CUDA device on this machine; use --device cpu (or auto)")
-    if index is not None and index >= th.cuda.device_count():
-        raise ValueError(f"--device {device}: this machine has {th.cuda.device_count()} CUDA device(s)")
-
-
-class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
-    """argparse's help with each option's default after its help text, unless the text already says it
-    ("default") or there is none to show (a flag, a default of None: the text says what holds instead)."""
-
-    def _get_help_string(self, action: argparse.Action) -> str:
-        text = action.help or ""
-        nothing = action.default is None or action.default is False or action.default is argparse.SUPPRESS
-        if "default" in text or nothing or action.default == [] or not action.option_strings:
-            return text
-        return super()._get_help_string(action) or text
-
-
-def argument_parser(prog: str, description: str, **kwargs: Any) -> argparse.ArgumentParser:
-    """A parser of the command line: no abbreviated options (``--smal`` is not ``--small``), each option's
-    default in ``--help`` (:class:`HelpFormatter`).
-
-    :param prog: the command (``"sb3-cic protocol"``)
-    :param description: what it does, as plain text
-    :param kwargs: further ``argparse.ArgumentParser`` arguments
-    """
-    kwargs.setdefault("formatter_class", HelpFormatter)
-    return argparse.ArgumentParser(prog=prog, description=description, allow_abbrev=False, **kwargs)

@@ -6,7 +6,8 @@ import json
 from pathlib import Path
 from typing import Any, Sequence
 
-from sb3_cic.common.arguments import argument_parser, option_type
+from sb3_cic.command_line import argument_parser, option_type
+from sb3_cic.common.arguments import POSITIVE_INT, SEED
 from sb3_cic.report import figures, markdown
 from sb3_cic.report.benchmark import ALL_12, URLB_DOMAINS, build_benchmark_report
 from sb3_cic.report.study_report import build_study_report
@@ -71,8 +72,8 @@ def report_main(argv: Sequence[str] | None = None) -> dict[str, Any]:
         "Score report of a URLB study folder: per-task scores, rliable aggregates and plots, written into the folder.",
     )
     parser.add_argument("study", help="study folder, written by sb3-cic study or sb3-cic protocol")
-    parser.add_argument("--reps", type=option_type("reps"), default=2000, help="bootstrap replications")
-    parser.add_argument("--seed", type=option_type("seed"), default=0, help="bootstrap seed")
+    parser.add_argument("--reps", type=option_type(POSITIVE_INT), default=2000, help="bootstrap replications")
+    parser.add_argument("--seed", type=option_type(SEED), default=0, help="bootstrap seed")
     args = parser.parse_args(argv)
     report = write_report(args.study, reps=args.reps, seed=args.seed)
     print((Path(args.study) / "report.md").read_text())
@@ -88,9 +89,9 @@ def benchmark_main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     )
     parser.add_argument("studies", nargs="+", help="study folders")
     parser.add_argument("--out", required=True, help="output folder for report.md, report.json and the figures")
-    parser.add_argument("--seeds", type=option_type("seeds"), nargs="+", default=None, help="fine-tuning seeds to keep (default: all)")
-    parser.add_argument("--reps", type=option_type("reps"), default=2000, help="bootstrap replications")
-    parser.add_argument("--seed", type=option_type("seed"), default=0, help="seed of the bootstrap and the permutations")
+    parser.add_argument("--seeds", type=option_type(SEED), nargs="+", default=None, help="fine-tuning seeds to keep (default: all)")
+    parser.add_argument("--reps", type=option_type(POSITIVE_INT), default=2000, help="bootstrap replications")
+    parser.add_argument("--seed", type=option_type(SEED), default=0, help="seed of the bootstrap and the permutations")
     args = parser.parse_args(argv)
     for study in args.studies:
         if not Path(study).is_dir():

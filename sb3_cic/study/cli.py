@@ -26,11 +26,8 @@ from sb3_cic.common.arguments import (
     SEED,
     STEPS,
     Range,
-    argument_parser,
-    check_device_available,
-    device_type,
-    option_type,
 )
+from sb3_cic.command_line import argument_parser, check_device_available, device_type, option_type
 from sb3_cic.constants import DEFAULT_SNAPSHOTS, SMALL_SETTINGS
 from sb3_cic.envs.tasks import DOMAIN_TASKS
 from sb3_cic.study.settings import Settings
