@@ -206,6 +206,19 @@ def test_a_checkpoint_copied_from_another_run_is_refused(tmp_path: Path, monkeyp
     assert not (seed1 / "result.json").exists()
 
 
+def test_a_checkpoint_period_that_ends_mid_episode_waits_for_its_end(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    """500 steps is half of walker's 1000-step episode: the checkpoint is taken at the next episode boundary (step
+    1000, not 500, where the episode start could not be reproduced), and the resumed run ends as the whole one."""
+    settings = replace(CHECKPOINTED, finetune_checkpoint_every=500)
+    folder = _interrupted_after_first_checkpoint(tmp_path / "study", 0, monkeypatch, settings)
+    assert RunFolder(folder).read_meta()["step"] == 1000
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        (resumed,) = run_protocol(tmp_path / "study", "ddpg", "walker", ["flip"], [0], settings)
+        (whole,) = run_protocol(tmp_path / "whole", "ddpg", "walker", ["flip"], [0], replace(settings, finetune_checkpoint_every=0))
+    assert resumed["resumed_from_step"] == 1000 and resumed["final_return"] == whole["final_return"]
+
+
 # 4. settings that change results -----------------------------------------------------------------------------
 def test_run_settings_are_recorded_and_a_resume_with_others_is_refused(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
     study = tmp_path / "study"
