@@ -267,6 +267,30 @@ def test_a_reused_pid_is_neither_signalled_nor_called_running(study: Path):
             bystander.wait()
 
 
+def test_a_progress_json_that_proves_no_process_is_no_running_run(study: Path, monkeypatch: pytest.MonkeyPatch):
+    """A pid that is no pid (-1 and 0 name many processes to ``kill``), garbage, or a live process of this host
+    recorded without its start time: nothing proves the run's process, so ``status`` says pending, in one piece, and
+    ``stop_runs`` neither signals nor waits."""
+    bystander = subprocess.Popen([sys.executable, "-c", "import sys; sys.stdin.read()"], stdin=subprocess.PIPE)
+    try:
+        run = Run("ddpg", "walker", "walker_flip", 0)
+        folder = RunFolder(run.folder(study))
+        folder.result.unlink()
+        here = socket.gethostname()
+        for progress in ({"host": here, "pid": -1, "start_time": 1}, {"host": here, "pid": 0}, {"host": here, "pid": None},
+                         {"host": here, "pid": "abc"}, {"host": here, "pid": 10**12}, [1, 2], {"host": here, "pid": bystander.pid}):
+            folder.progress.write_text(json.dumps(progress if isinstance(progress, list) else {**progress, "updated": 1e12}))
+            assert run_state(folder)[0] == "pending", progress
+            assert "ddpg walker_flip seed 0: pending" in status_report(study)[0]
+            with monkeypatch.context() as patch:  # stop_runs sleeps only while it waits for a process it would stop
+                patch.setattr("sb3_cic.study.engine.time.sleep", lambda s: pytest.fail(f"stop_runs waits for {progress}"))
+                stop_runs(study, [run], since=0, grace_s=60)
+            assert bystander.poll() is None
+    finally:
+        bystander.kill()
+        bystander.wait()
+
+
 # the smaller points ------------------------------------------------------------------------------------------
 def test_a_command_stopped_at_once_leaves_no_folder(tmp_path: Path):
     new, old = tmp_path / "new", tmp_path / "old"

@@ -29,7 +29,7 @@ from sb3_cic import protocol
 from sb3_cic.common.arguments import check_argument
 from sb3_cic.protocol import Settings, check_study_settings, record_study_settings, run_record
 from sb3_cic.study.checkpoint import RunFolder, process_start_time
-from sb3_cic.study.graph import Run, alive, build_graph, check_study, record_runs, settings_use
+from sb3_cic.study.graph import Run, alive, build_graph, check_study, record_runs, recorded_pid, settings_use
 from sb3_cic.study.record import Pairing, StudyLock, check_resume_settings, check_run_settings, resolve_pairing
 
 
@@ -146,9 +146,9 @@ def stop_runs(study: str | Path, runs: Sequence[Run], since: float, grace_s: flo
     for run in runs:
         progress = RunFolder(run.folder(study)).read_progress() or {}
         if progress.get("host") == here and progress.get("updated", 0) >= since and progress.get("pid") != os.getpid():
-            start = progress.get("start_time")
-            if isinstance(start, int) and isinstance(progress.get("pid"), int):
-                processes.add((progress["pid"], start))
+            pid, start = recorded_pid(progress), progress.get("start_time")
+            if pid is not None and type(start) is int:
+                processes.add((pid, start))
     deadline = time.monotonic() + grace_s
     while any(alive(pid, start) for pid, start in processes) and time.monotonic() < deadline:
         time.sleep(0.1)
@@ -293,7 +293,7 @@ def announce_resumed(study: str | Path, runs: Sequence[Run]) -> None:
     """
     for run in runs:
         step = (RunFolder(run.folder(study)).read_progress() or {}).get("checkpoint_step")
-        if step:
+        if type(step) is int and step > 0:
             print(f"{run}: resumes from its checkpoint at step {step:,}", flush=True)
 
 
