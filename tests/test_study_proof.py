@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import signal
 import socket
 import subprocess
 import sys
@@ -25,7 +26,7 @@ from sb3_cic.study.checkpoint import RunFolder
 from sb3_cic.study.engine import stop_runs
 from sb3_cic.study.graph import Run, run_state, status_report
 from sb3_cic.study.record import StudyLock
-from test_study_folder import _exit  # a command's exit code, stdout and stderr, run in process
+from test_study_folder import TINY_FLAGS, _exit  # a command's exit code, stdout and stderr, run in process
 
 TINY = Settings(hidden_dim=32, batch_size=32, learning_starts=500, buffer_size=10_000, pretrain_steps=600, finetune_steps=600,
                 eval_freq=10_000, eval_episodes=1, num_threads=1, pretrain_checkpoint_every=0, finetune_checkpoint_every=0)
@@ -299,6 +300,40 @@ def test_a_command_stopped_at_once_leaves_no_folder(tmp_path: Path):
         with pytest.raises(KeyboardInterrupt), StudyLock(folder):
             raise KeyboardInterrupt
     assert not new.exists() and old.exists()
+
+
+def _signal_during_ray_init(signum: int, then: str):
+    """A stand-in for ``ray.init`` during which ``signum`` arrives (the whole process group signalled): ``then`` is
+    what Ray's start makes of it: ``"exit"`` (Ray's SIGTERM handler, installed first: ``sys.exit``) or ``"error"``
+    (the interrupt cut a start short, which fails with its own error)."""
+
+    def init(**kwargs):
+        if then == "exit":
+            signal.signal(signal.SIGTERM, lambda number, frame: sys.exit(number))
+        try:
+            os.kill(os.getpid(), signum)
+            for _ in range(10**6):  # the handler runs between two bytecodes of this thread
+                pass
+        except KeyboardInterrupt as interrupt:
+            raise RuntimeError("Failed to connect to GCS") from interrupt
+        raise AssertionError("the signal did not arrive")
+
+    return init
+
+
+@pytest.mark.parametrize(("signum", "then"), [(signal.SIGTERM, "exit"), (signal.SIGINT, "error"), (signal.SIGTERM, "error")])
+def test_a_signal_while_ray_starts_is_one_line(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture,
+                                               signum: int, then: str):
+    import ray
+
+    monkeypatch.setattr(ray, "init", _signal_during_ray_init(signum, then))
+    code, _, err = _exit(["study", str(tmp_path / "study"), "--methods", "ddpg", "--domains", "walker", "--tasks", "flip",
+                          "--seeds", "0", "--finetune-steps", "600", *TINY_FLAGS], capsys)
+    assert code == 128 + signum and err.strip().splitlines() == [
+        f"sb3-cic study: interrupted ({signal.Signals(signum).name}); its runs are stopped and keep their last checkpoint: "
+        "run the same command to resume"], err
+    assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL
+    assert status_report(tmp_path / "study")[0].splitlines()[0].endswith("1 run, 0 done, 0 running, 0 failed, 1 pending, 0 damaged")
 
 
 def test_report_refuses_a_damaged_or_edited_study_json(study: Path, capsys: pytest.CaptureFixture):

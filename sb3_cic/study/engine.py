@@ -173,31 +173,34 @@ def start_ray(
     :param gpus_per_run: GPUs per run (the local instance has ``workers * gpus_per_run``, rounded up)
     :param log_to_driver: show the workers' output here
 
-    The process's SIGTERM handler is kept (``ray.init`` installs its own). A local instance runs its workers at
+    The process's SIGTERM handler is kept (``ray.init`` installs its own, which ends the process with no word: a
+    SIGTERM while ``ray.init`` runs is :class:`~sb3_cic.study.cli.Interrupted` instead). A local instance runs its workers at
     this process's niceness: Ray's default (15) leaves a study's runs a few percent of a CPU that any other
     program keeps busy; ``RAY_worker_niceness`` in the environment still decides where it is set.
     """
     import ray
 
+    from sb3_cic.study.cli import Interrupted
+
     sigterm = signal.getsignal(signal.SIGTERM)
-    if address:
-        ray.init(address=address, log_to_driver=log_to_driver)
-    else:
-        unset = "RAY_worker_niceness" not in os.environ
-        if unset:  # the raylet, started here, passes it to the workers it starts
-            os.environ["RAY_worker_niceness"] = str(os.nice(0))
-        try:
-            ray.init(
-                num_cpus=math.ceil(workers * cpus_per_run),
-                num_gpus=math.ceil(workers * gpus_per_run),
-                include_dashboard=False,
-                log_to_driver=log_to_driver,
-            )
-        finally:
-            if unset:
-                del os.environ["RAY_worker_niceness"]
-    if sigterm is not None:  # Ray's driver aborts on SIGTERM with a stack dump: the command's own handler stays
-        signal.signal(signal.SIGTERM, sigterm)
+    unset = not address and "RAY_worker_niceness" not in os.environ
+    if unset:  # the raylet, started here, passes it to the workers it starts
+        os.environ["RAY_worker_niceness"] = str(os.nice(0))
+    try:
+        if address:
+            ray.init(address=address, log_to_driver=log_to_driver)
+        else:
+            ray.init(num_cpus=math.ceil(workers * cpus_per_run), num_gpus=math.ceil(workers * gpus_per_run),
+                     include_dashboard=False, log_to_driver=log_to_driver)
+    except SystemExit as exit_:  # Ray's SIGTERM handler, in place while ray.init runs, exits with no word
+        if exit_.code != signal.SIGTERM:
+            raise
+        raise Interrupted(signal.SIGTERM) from None
+    finally:
+        if unset:
+            del os.environ["RAY_worker_niceness"]
+        if sigterm is not None:  # Ray's driver aborts on SIGTERM with a stack dump: the command's own handler stays
+            signal.signal(signal.SIGTERM, sigterm)
 
 
 def run_study(
@@ -223,7 +226,8 @@ def run_study(
     pairing, a damaged ``study.json``, ``result.json`` or ``eval.csv``, a corrupt or lost checkpoint, a missing
     snapshot, bad resources, another command driving the folder) is a ``ValueError`` before anything is written or
     run. Without ``address`` and without a Ray instance in this process, a local one is started (and stopped).
-    Interrupted (:class:`KeyboardInterrupt`), the runs are stopped (:func:`stop_runs`) before it raises.
+    Interrupted (:class:`KeyboardInterrupt`; SIGTERM while Ray starts, :func:`start_ray`) or failed once runs may
+    have started, the runs are stopped (:func:`stop_runs`) before it raises.
 
     :param study: study folder
     :param methods: rl-zoo names or ``["all"]``
@@ -270,11 +274,11 @@ def run_study(
             return runs, []
         announce_resumed(study, todo)
         started, since = not ray.is_initialized(), time.time()
-        if started:
-            start_ray(address, workers, cpus_per_run, gpus_per_run, log_to_driver=settings.verbose > 0)
         try:
+            if started:
+                start_ray(address, workers, cpus_per_run, gpus_per_run, log_to_driver=settings.verbose > 0)
             return runs, run_graph(study, todo, settings, cpus_per_run, gpus_per_run, max_retries, progress_bar)
-        except KeyboardInterrupt:
+        except BaseException:  # interrupted, or whatever error an interruption became (Ray's own, a half-made import)
             if started:
                 ray.shutdown()
             stop_runs(study, todo, since)
