@@ -59,14 +59,16 @@ def gather_results(
     :param seeds: fine-tuning seeds to keep (None: all)
     :param read: filled with ``{study: lines}``, how many runs of which kind each study counted
         (:meth:`~sb3_cic.study.results.StudyResults.describe`)
-    :raises ValueError: a folder without results, or one (label, task, seed) in two folders
+    :raises ValueError: a folder without results, one (label, task, seed) in two folders, or studies made with other
+        settings (:func:`check_same_settings`)
     """
     from sb3_cic.study.results import study_results
 
-    results, origin = [], {}
+    results, origin, settings = [], {}, {}
     for study in studies:
         counted = study_results(study)
         found = counted.results
+        settings[str(study)] = counted.settings
         if read is not None:
             read[str(study)] = counted.describe()
         if not found:
@@ -80,7 +82,32 @@ def gather_results(
             origin[key] = str(study)
             result["study"] = str(study)
             results.append(result)
+    check_same_settings(settings)
     return results
+
+
+#: settings of a study that change no result it reports (the intermediate snapshots a pre-training saves)
+RESULT_NEUTRAL_SETTINGS: tuple[str, ...] = ("snapshots",)
+
+
+def check_same_settings(settings: dict[str, dict[str, Any] | None]) -> None:
+    """``ValueError`` (one line) if the studies were made with other settings: their runs would be mixed in one
+    table and one aggregate (1,000-step fine-tunings beside 2,000-step ones). A setting is compared between the
+    studies that record it (a study of runs from scratch records no pre-training setting; the oldest studies record
+    none); :data:`RESULT_NEUTRAL_SETTINGS` are not compared.
+
+    :param settings: ``{study: its recorded settings}`` (None: none recorded)
+    """
+    recorded = {study: values for study, values in settings.items() if values}
+    keys = sorted({key for values in recorded.values() for key in values} - set(RESULT_NEUTRAL_SETTINGS))
+    differ = {}
+    for key in keys:
+        values = {study: values[key] for study, values in recorded.items() if key in values}
+        if len({json.dumps(value, sort_keys=True) for value in values.values()}) > 1:
+            differ[key] = values
+    if differ:
+        raise ValueError(f"the studies were made with other settings ({differ}): their runs would be mixed in one "
+                         "report; report each study alone, or give studies of the same settings")
 
 
 def task_means(results: list[dict[str, Any]]) -> dict[str, dict[str, list[float]]]:

@@ -161,6 +161,20 @@ def test_a_run_of_another_study_counts_only_with_the_studys_settings(study: Path
     assert _status_counts(study).endswith("6 runs, 6 done, 0 running, 0 failed, 0 pending, 0 damaged")
 
 
+def test_a_benchmark_report_refuses_studies_made_with_other_settings(tiny: Path, tmp_path: Path):
+    from sb3_cic.benchmark import write_benchmark_report
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        run_protocol(tmp_path / "same", "ddpg", "walker", ["flip"], [7], TINY)
+        run_protocol(tmp_path / "longer", "ddpg", "walker", ["flip"], [8], replace(TINY, finetune_steps=700))
+    report = write_benchmark_report([tiny, tmp_path / "same"], tmp_path / "out", reps=20)
+    assert len(report["returns"]["ddpg"]["walker_flip"]) == 3 and report["seeds"] == [0, 1, 7]
+    with pytest.raises(ValueError, match=r"other settings.*finetune_steps.*600.*700"):
+        write_benchmark_report([tiny, tmp_path / "longer"], tmp_path / "mixed", reps=20)
+    assert not (tmp_path / "mixed").exists()
+
+
 # 3. inputs with no identity ----------------------------------------------------------------------------------
 def test_a_snapshot_copied_over_another_is_refused(study: Path):
     ours, theirs = study / "pretrain" / "cic_walker" / "snapshot_600.zip", study / "pretrain" / "cic_walker_seed1" / "snapshot_600.zip"
