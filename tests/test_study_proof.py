@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import signal
 import socket
 import subprocess
 import sys
@@ -28,7 +29,7 @@ from sb3_cic.study.checkpoint import RunFolder
 from sb3_cic.study.engine import stop_runs
 from sb3_cic.study.graph import Run, run_state, status_report
 from sb3_cic.study.record import StudyLock
-from test_study_folder import _exit  # a command's exit code, stdout and stderr, run in process
+from test_study_folder import TINY_FLAGS, _exit  # a command's exit code, stdout and stderr, run in process
 
 TINY = Settings(hidden_dim=32, batch_size=32, learning_starts=500, buffer_size=10_000, pretrain_steps=600, finetune_steps=600,
                 eval_freq=10_000, eval_episodes=1, num_threads=1, pretrain_checkpoint_every=0, finetune_checkpoint_every=0)
@@ -163,6 +164,20 @@ def test_a_run_of_another_study_counts_only_with_the_studys_settings(study: Path
     assert _status_counts(study).endswith("6 runs, 6 done, 0 running, 0 failed, 0 pending, 0 damaged")
 
 
+def test_a_benchmark_report_refuses_studies_made_with_other_settings(tiny: Path, tmp_path: Path):
+    from sb3_cic.report.commands import write_benchmark_report
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        run_protocol(tmp_path / "same", "ddpg", "walker", ["flip"], [7], TINY)
+        run_protocol(tmp_path / "longer", "ddpg", "walker", ["flip"], [8], replace(TINY, finetune_steps=700))
+    report = write_benchmark_report([tiny, tmp_path / "same"], tmp_path / "out", reps=20)
+    assert len(report["returns"]["ddpg"]["walker_flip"]) == 3 and report["seeds"] == [0, 1, 7]
+    with pytest.raises(ValueError, match=r"other settings.*finetune_steps.*600.*700"):
+        write_benchmark_report([tiny, tmp_path / "longer"], tmp_path / "mixed", reps=20)
+    assert not (tmp_path / "mixed").exists()
+
+
 # 3. inputs with no identity ----------------------------------------------------------------------------------
 def test_a_snapshot_copied_over_another_is_refused(study: Path):
     ours, theirs = study / "pretrain" / "cic_walker" / "snapshot_600.zip", study / "pretrain" / "cic_walker_seed1" / "snapshot_600.zip"
@@ -207,6 +222,19 @@ def test_a_checkpoint_copied_from_another_run_is_refused(tmp_path: Path, monkeyp
     with pytest.raises(ValueError, match=r"checkpoint.zip belongs to another run .*'ddpg', 'walker', 'walker_flip', 0"):
         run_protocol(study, "ddpg", "walker", ["flip"], [1], CHECKPOINTED)
     assert not (seed1 / "result.json").exists()
+
+
+def test_a_checkpoint_period_that_ends_mid_episode_waits_for_its_end(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    """500 steps is half of walker's 1000-step episode: the checkpoint is taken at the next episode boundary (step
+    1000, not 500, where the episode start could not be reproduced), and the resumed run ends as the whole one."""
+    settings = replace(CHECKPOINTED, finetune_checkpoint_every=500)
+    folder = _interrupted_after_first_checkpoint(tmp_path / "study", 0, monkeypatch, settings)
+    assert RunFolder(folder).read_meta()["step"] == 1000
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        (resumed,) = run_protocol(tmp_path / "study", "ddpg", "walker", ["flip"], [0], settings)
+        (whole,) = run_protocol(tmp_path / "whole", "ddpg", "walker", ["flip"], [0], replace(settings, finetune_checkpoint_every=0))
+    assert resumed["resumed_from_step"] == 1000 and resumed["final_return"] == whole["final_return"]
 
 
 # 4. settings that change results -----------------------------------------------------------------------------
@@ -257,6 +285,30 @@ def test_a_reused_pid_is_neither_signalled_nor_called_running(study: Path):
             bystander.wait()
 
 
+def test_a_progress_json_that_proves_no_process_is_no_running_run(study: Path, monkeypatch: pytest.MonkeyPatch):
+    """A pid that is no pid (-1 and 0 name many processes to ``kill``), garbage, or a live process of this host
+    recorded without its start time: nothing proves the run's process, so ``status`` says pending, in one piece, and
+    ``stop_runs`` neither signals nor waits."""
+    bystander = subprocess.Popen([sys.executable, "-c", "import sys; sys.stdin.read()"], stdin=subprocess.PIPE)
+    try:
+        run = Run("ddpg", "walker", "walker_flip", 0)
+        folder = RunFolder(run.folder(study))
+        folder.result.unlink()
+        here = socket.gethostname()
+        for progress in ({"host": here, "pid": -1, "start_time": 1}, {"host": here, "pid": 0}, {"host": here, "pid": None},
+                         {"host": here, "pid": "abc"}, {"host": here, "pid": 10**12}, [1, 2], {"host": here, "pid": bystander.pid}):
+            folder.progress.write_text(json.dumps(progress if isinstance(progress, list) else {**progress, "updated": 1e12}))
+            assert run_state(folder)[0] == "pending", progress
+            assert "ddpg walker_flip seed 0: pending" in status_report(study)[0]
+            with monkeypatch.context() as patch:  # stop_runs sleeps only while it waits for a process it would stop
+                patch.setattr("sb3_cic.study.engine.time.sleep", lambda s: pytest.fail(f"stop_runs waits for {progress}"))
+                stop_runs(study, [run], since=0, grace_s=60)
+            assert bystander.poll() is None
+    finally:
+        bystander.kill()
+        bystander.wait()
+
+
 # the smaller points ------------------------------------------------------------------------------------------
 def test_a_command_stopped_at_once_leaves_no_folder(tmp_path: Path):
     new, old = tmp_path / "new", tmp_path / "old"
@@ -265,6 +317,40 @@ def test_a_command_stopped_at_once_leaves_no_folder(tmp_path: Path):
         with pytest.raises(KeyboardInterrupt), StudyLock(folder):
             raise KeyboardInterrupt
     assert not new.exists() and old.exists()
+
+
+def _signal_during_ray_init(signum: int, then: str):
+    """A stand-in for ``ray.init`` during which ``signum`` arrives (the whole process group signalled): ``then`` is
+    what Ray's start makes of it: ``"exit"`` (Ray's SIGTERM handler, installed first: ``sys.exit``) or ``"error"``
+    (the interrupt cut a start short, which fails with its own error)."""
+
+    def init(**kwargs):
+        if then == "exit":
+            signal.signal(signal.SIGTERM, lambda number, frame: sys.exit(number))
+        try:
+            os.kill(os.getpid(), signum)
+            for _ in range(10**6):  # the handler runs between two bytecodes of this thread
+                pass
+        except KeyboardInterrupt as interrupt:
+            raise RuntimeError("Failed to connect to GCS") from interrupt
+        raise AssertionError("the signal did not arrive")
+
+    return init
+
+
+@pytest.mark.parametrize(("signum", "then"), [(signal.SIGTERM, "exit"), (signal.SIGINT, "error"), (signal.SIGTERM, "error")])
+def test_a_signal_while_ray_starts_is_one_line(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture,
+                                               signum: int, then: str):
+    import ray
+
+    monkeypatch.setattr(ray, "init", _signal_during_ray_init(signum, then))
+    code, _, err = _exit(["study", str(tmp_path / "study"), "--methods", "ddpg", "--domains", "walker", "--tasks", "flip",
+                          "--seeds", "0", "--finetune-steps", "600", *TINY_FLAGS], capsys)
+    assert code == 128 + signum and err.strip().splitlines() == [
+        f"sb3-cic study: interrupted ({signal.Signals(signum).name}); its runs are stopped and keep their last checkpoint: "
+        "run the same command to resume"], err
+    assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL
+    assert status_report(tmp_path / "study")[0].splitlines()[0].endswith("1 run, 0 done, 0 running, 0 failed, 1 pending, 0 damaged")
 
 
 def test_report_refuses_a_damaged_or_edited_study_json(study: Path, capsys: pytest.CaptureFixture):

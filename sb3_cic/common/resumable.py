@@ -201,7 +201,10 @@ class RunCheckpointCallback(BaseCallback):
     """Checkpoint the run every ``every`` steps, at the first episode boundary after that many steps.
 
     The checkpoint is taken when a rollout starts (the previous rollout's updates done) right after an
-    episode ended, so a resumed run goes on exactly as the uninterrupted one would.
+    episode ended, so a resumed run goes on exactly as the uninterrupted one would. The callback sees the episode
+    ends itself (each step's ``dones``): SB3's off-policy algorithms leave ``_last_episode_starts`` as ``learn`` set
+    it, all True, which would take a period that ends mid-episode for an episode boundary (a checkpoint whose episode
+    start cannot be reproduced).
 
     :param folder: the run's folder
     :param every: steps between checkpoints (0: none)
@@ -234,6 +237,7 @@ class RunCheckpointCallback(BaseCallback):
                     )
         self._last = self.num_timesteps
         self._start = time.perf_counter()
+        self._episode_start = True  # ``learn`` starts at an episode start: a reset, or the checkpoint's restored one
 
     def elapsed(self) -> float:
         """Training seconds of the run so far (including the time before a resume)."""
@@ -242,7 +246,7 @@ class RunCheckpointCallback(BaseCallback):
     def _on_rollout_start(self) -> None:
         if not self.every or self.num_timesteps - self._last < self.every:
             return
-        if not np.all(self.model._last_episode_starts):
+        if not self._episode_start:
             return
         start = time.perf_counter()
         size = self.folder.save_checkpoint(self.model, self.callbacks, {"elapsed_s": self.elapsed()})
@@ -252,4 +256,5 @@ class RunCheckpointCallback(BaseCallback):
             print(f"Checkpoint at step {self.num_timesteps}: {self.folder.checkpoint} ({size / 1e6:.1f} MB)")
 
     def _on_step(self) -> bool:
+        self._episode_start = bool(np.all(self.locals["dones"]))
         return True

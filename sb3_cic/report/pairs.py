@@ -9,6 +9,7 @@ paired draws.
 
 from __future__ import annotations
 
+import json
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -47,13 +48,15 @@ def gather_results(studies: Sequence[str | Path], seeds: Sequence[int] | None = 
 
     :param studies: study folders
     :param seeds: fine-tuning seeds to keep (None: all)
-    :raises ValueError: a folder without results, or one (label, task, seed) in two folders
+    :raises ValueError: a folder without results, one (label, task, seed) in two folders, or studies made with other
+        settings (:func:`check_same_settings`)
     """
     from sb3_cic.study.results import study_results
 
-    out, origin = Gathered(), {}
+    out, origin, settings = Gathered(), {}, {}
     for study in studies:
         counted = study_results(study)
+        settings[str(study)] = counted.settings
         out.runs_read[str(study)] = counted.describe()
         if not counted.results:
             raise ValueError(f"no fine-tuning results under {Path(study) / 'finetune'}")
@@ -71,7 +74,32 @@ def gather_results(studies: Sequence[str | Path], seeds: Sequence[int] | None = 
             origin[key] = str(study)
             result["study"] = str(study)
             out.results.append(result)
+    check_same_settings(settings)
     return out
+
+
+#: settings of a study that change no result it reports (the intermediate snapshots a pre-training saves)
+RESULT_NEUTRAL_SETTINGS: tuple[str, ...] = ("snapshots",)
+
+
+def check_same_settings(settings: dict[str, dict[str, Any] | None]) -> None:
+    """``ValueError`` (one line) if the studies were made with other settings: their runs would be mixed in one
+    table and one aggregate (1,000-step fine-tunings beside 2,000-step ones). A setting is compared between the
+    studies that record it (a study of runs from scratch records no pre-training setting; the oldest studies record
+    none); :data:`RESULT_NEUTRAL_SETTINGS` are not compared.
+
+    :param settings: ``{study: its recorded settings}`` (None: none recorded)
+    """
+    recorded = {study: values for study, values in settings.items() if values}
+    keys = sorted({key for values in recorded.values() for key in values} - set(RESULT_NEUTRAL_SETTINGS))
+    differ = {}
+    for key in keys:
+        values = {study: values[key] for study, values in recorded.items() if key in values}
+        if len({json.dumps(value, sort_keys=True) for value in values.values()}) > 1:
+            differ[key] = values
+    if differ:
+        raise ValueError(f"the studies were made with other settings ({differ}): their runs would be mixed in one "
+                         "report; report each study alone, or give studies of the same settings")
 
 
 def pretraining_differences(results: list[dict[str, Any]]) -> dict[str, Any] | None:

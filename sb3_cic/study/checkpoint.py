@@ -96,11 +96,12 @@ class RunFolder:
         return self.result.exists()
 
     def read_progress(self) -> dict[str, Any] | None:
-        """``progress.json`` (None if absent or unreadable)."""
+        """``progress.json`` (None if absent, unreadable or no JSON object)."""
         try:
-            return json.loads(self.progress.read_text())
+            progress = json.loads(self.progress.read_text())
         except (OSError, ValueError):
             return None
+        return progress if isinstance(progress, dict) else None
 
     def read_meta(self) -> dict[str, Any] | None:
         """The checkpoint's ``meta.json`` (None without checkpoint); ``ValueError`` if the checkpoint is corrupt

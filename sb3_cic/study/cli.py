@@ -252,7 +252,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     Bad input is a ``ValueError`` before anything is written or run (:func:`~sb3_cic.study.engine.run_study`);
     :func:`sb3_cic.cli.main` reports it in one line. SIGINT or SIGTERM stop the runs (no process of the command
-    writes afterwards) and end the command with one line that says how to resume, and the exit code 130 or 143.
+    writes afterwards) and end the command with one line that says how to resume, and the exit code 130 or 143,
+    whatever error the signal became on its way (an import it cut short, Ray's processes gone with it).
     """
     args = build_parser().parse_args(argv)
     if args.address is None:  # on a cluster, the nodes that run the runs may have the GPUs the driver lacks
@@ -272,8 +273,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                 progress_bar=not args.no_progress, from_snapshot=args.from_snapshot, pairing=args.pairing,
                 conf_files=conf_files,
             )
-    except KeyboardInterrupt:
-        signum = received[0] if received else signal.SIGINT
+    except BaseException as error:  # a signal may surface as another error (Ray's, an import it cut short)
+        if not received and not isinstance(error, KeyboardInterrupt):
+            raise
+        signum = received[0] if received else getattr(error, "signum", signal.SIGINT)
         print(f"sb3-cic study: interrupted ({signal.Signals(signum).name}); its runs are stopped and keep their last "
               "checkpoint: run the same command to resume", file=sys.stderr)
         return INTERRUPTED_CODES[signum]

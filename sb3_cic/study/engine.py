@@ -31,7 +31,7 @@ from sb3_cic.common.arguments import NON_NEGATIVE_INT, check_argument
 from sb3_cic.protocol import finetune, pretrain
 from sb3_cic.study.checkpoint import RunFolder, process_start_time
 from sb3_cic.study.driver import StudyPlan, drive, plan_study
-from sb3_cic.study.graph import alive
+from sb3_cic.study.graph import alive, recorded_pid
 from sb3_cic.study.run import Run
 from sb3_cic.study.settings import Settings
 
@@ -138,9 +138,9 @@ def stop_runs(study: str | Path, runs: Sequence[Run], since: float, grace_s: flo
     for run in runs:
         progress = RunFolder(run.folder(study)).read_progress() or {}
         if progress.get("host") == here and progress.get("updated", 0) >= since and progress.get("pid") != os.getpid():
-            start = progress.get("start_time")
-            if isinstance(start, int) and isinstance(progress.get("pid"), int):
-                processes.add((progress["pid"], start))
+            pid, start = recorded_pid(progress), progress.get("start_time")
+            if pid is not None and type(start) is int:
+                processes.add((pid, start))
     deadline = time.monotonic() + grace_s
     while any(alive(pid, start) for pid, start in processes) and time.monotonic() < deadline:
         time.sleep(0.1)
@@ -165,31 +165,34 @@ def start_ray(
     :param gpus_per_run: GPUs per run (the local instance has ``workers * gpus_per_run``, rounded up)
     :param log_to_driver: show the workers' output here
 
-    The process's SIGTERM handler is kept (``ray.init`` installs its own). A local instance runs its workers at
+    The process's SIGTERM handler is kept (``ray.init`` installs its own, which ends the process with no word: a
+    SIGTERM while ``ray.init`` runs is :class:`~sb3_cic.study.cli.Interrupted` instead). A local instance runs its workers at
     this process's niceness: Ray's default (15) leaves a study's runs a few percent of a CPU that any other
     program keeps busy; ``RAY_worker_niceness`` in the environment still decides where it is set.
     """
     import ray
 
+    from sb3_cic.study.cli import Interrupted
+
     sigterm = signal.getsignal(signal.SIGTERM)
-    if address:
-        ray.init(address=address, log_to_driver=log_to_driver)
-    else:
-        unset = "RAY_worker_niceness" not in os.environ
-        if unset:  # the raylet, started here, passes it to the workers it starts
-            os.environ["RAY_worker_niceness"] = str(os.nice(0))
-        try:
-            ray.init(
-                num_cpus=math.ceil(workers * cpus_per_run),
-                num_gpus=math.ceil(workers * gpus_per_run),
-                include_dashboard=False,
-                log_to_driver=log_to_driver,
-            )
-        finally:
-            if unset:
-                del os.environ["RAY_worker_niceness"]
-    if sigterm is not None:  # Ray's driver aborts on SIGTERM with a stack dump: the command's own handler stays
-        signal.signal(signal.SIGTERM, sigterm)
+    unset = not address and "RAY_worker_niceness" not in os.environ
+    if unset:  # the raylet, started here, passes it to the workers it starts
+        os.environ["RAY_worker_niceness"] = str(os.nice(0))
+    try:
+        if address:
+            ray.init(address=address, log_to_driver=log_to_driver)
+        else:
+            ray.init(num_cpus=math.ceil(workers * cpus_per_run), num_gpus=math.ceil(workers * gpus_per_run),
+                     include_dashboard=False, log_to_driver=log_to_driver)
+    except SystemExit as exit_:  # Ray's SIGTERM handler, in place while ray.init runs, exits with no word
+        if exit_.code != signal.SIGTERM:
+            raise
+        raise Interrupted(signal.SIGTERM) from None
+    finally:
+        if unset:
+            del os.environ["RAY_worker_niceness"]
+        if sigterm is not None:  # Ray's driver aborts on SIGTERM with a stack dump: the command's own handler stays
+            signal.signal(signal.SIGTERM, sigterm)
 
 
 @dataclass
@@ -197,7 +200,8 @@ class RayExecutor:
     """Run a study's runs as Ray tasks (``sb3-cic study``): each run one task with its resources and ``max_retries``;
     a run that fails is recorded in its folder and the others go on (:func:`run_graph`). Without ``address`` and
     without a Ray instance in this process, a local one is started (and stopped). Interrupted
-    (:class:`KeyboardInterrupt`), the runs are stopped (:func:`stop_runs`) before it raises.
+    (:class:`KeyboardInterrupt`; SIGTERM while Ray starts) or failed once runs may have started, the runs are stopped
+    (:func:`stop_runs`) before it raises.
 
     :param address: address of a running Ray cluster
     :param workers: runs at a time of a local Ray instance
@@ -237,12 +241,12 @@ class RayExecutor:
             return []
         announce_resumed(plan.study, plan.todo)
         started, since = not ray.is_initialized(), time.time()
-        if started:
-            start_ray(self.address, self.workers, self.cpus_per_run, self.gpus_per_run,
-                      log_to_driver=plan.settings.verbose > 0)
         try:
+            if started:
+                start_ray(self.address, self.workers, self.cpus_per_run, self.gpus_per_run,
+                          log_to_driver=plan.settings.verbose > 0)
             return run_graph(plan, self)
-        except KeyboardInterrupt:
+        except BaseException:  # interrupted, or whatever error an interruption became (Ray's own, a half-made import)
             if started:
                 ray.shutdown()
             stop_runs(plan.study, plan.todo, since)
@@ -272,7 +276,9 @@ def run_study(
 ) -> tuple[list[Run], list[dict[str, Any]]]:
     """``sb3-cic study``: the study's runs, checked (:func:`~sb3_cic.study.driver.plan_study`: every bad input, bad
     resources too, is a ``ValueError`` before anything is written or run), recorded and run on Ray
-    (:class:`RayExecutor`, :func:`~sb3_cic.study.driver.drive`).
+    (:class:`RayExecutor`, :func:`~sb3_cic.study.driver.drive`). Interrupted (:class:`KeyboardInterrupt`; SIGTERM while Ray
+    starts, :func:`start_ray`) or failed once runs may have started, the runs are stopped (:func:`stop_runs`) before it
+    raises.
 
     :param study: study folder
     :param methods: rl-zoo names or ``["all"]``
@@ -309,5 +315,5 @@ def announce_resumed(study: str | Path, runs: Sequence[Run]) -> None:
     """
     for run in runs:
         step = (RunFolder(run.folder(study)).read_progress() or {}).get("checkpoint_step")
-        if step:
+        if type(step) is int and step > 0:
             print(f"{run}: resumes from its checkpoint at step {step:,}", flush=True)

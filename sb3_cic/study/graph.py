@@ -206,6 +206,32 @@ def alive(pid: int, start_time: int | None = None) -> bool:
         return True
 
 
+#: the largest pid Linux gives (``/proc/sys/kernel/pid_max`` is at most 2**22)
+PID_MAX = 2**22
+
+
+def recorded_pid(progress: dict[str, Any]) -> int | None:
+    """The pid a run's ``progress.json`` records; None where it is no pid (absent, no int, not in 1..PID_MAX: a
+    damaged or edited file names no process, and ``-1`` or ``0`` would name many to ``kill``)."""
+    pid = progress.get("pid")
+    return pid if type(pid) is int and 0 < pid <= PID_MAX else None
+
+
+def recorded_process_alive(progress: dict[str, Any]) -> bool:
+    """Whether the process of this host that a run's ``progress.json`` names still runs, proven by its start time
+    (:func:`alive`). A process recorded without its start time (by older code) is not proven, and so not taken for
+    the run's, except on a host that cannot read start times at all (no ``/proc``), where the pid is all there is.
+
+    :param progress: the run's ``progress.json``
+    """
+    pid, start = recorded_pid(progress), progress.get("start_time")
+    if pid is None:
+        return False
+    if type(start) is not int:
+        return start is None and process_start_time(os.getpid()) is None and alive(pid)
+    return alive(pid, start) and process_start_time(pid) == start
+
+
 def run_state(folder: RunFolder, kind: str = "finetune", check: Any = None) -> tuple[str, dict[str, Any]]:
     """The state of a run (one of :data:`STATES`) and what its folder says: ``checkpoint_step``, ``error``...
 
@@ -215,7 +241,7 @@ def run_state(folder: RunFolder, kind: str = "finetune", check: Any = None) -> t
         :func:`~sb3_cic.study.run_result.read_run_result` alone)
 
     ``running``: its ``progress.json`` names a live process (on this host, the same process: its start time is the
-    one recorded, :func:`alive`) or another host; a run whose process is gone is ``pending`` (it resumes from its
+    one recorded, :func:`recorded_process_alive`) or another host; a run whose process is gone is ``pending`` (it resumes from its
     checkpoint when started again).
     """
     if folder.done:
@@ -238,7 +264,7 @@ def run_state(folder: RunFolder, kind: str = "finetune", check: Any = None) -> t
         return "failed", {**info, "error": lines[-1] if lines else "", "traceback": str(folder.error)}
     if progress:
         here = progress.get("host") == socket.gethostname()
-        if not here or alive(int(progress.get("pid", -1)), progress.get("start_time")):
+        if not here or recorded_process_alive(progress):
             return "running", {**info, "host": progress.get("host"), "pid": progress.get("pid")}
     return "pending", info
 

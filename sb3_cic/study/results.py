@@ -129,12 +129,14 @@ class StudyResults:
     :param kinds: ``{kind of :data:`KINDS`: runs}``
     :param refused: one line per run folder not counted (what disagrees, in which file)
     :param unrecorded: ``{field: runs that do not record it}`` (made before it was recorded)
+    :param settings: the study's recorded settings (None: none recorded)
     """
 
     results: list[dict[str, Any]] = field(default_factory=list)
     kinds: Counter = field(default_factory=Counter)
     refused: list[str] = field(default_factory=list)
     unrecorded: Counter = field(default_factory=Counter)
+    settings: dict[str, Any] | None = None
 
     def describe(self) -> list[str]:
         """Lines for a report: how many runs of which kind were read, refused, and what some do not record."""
@@ -175,7 +177,7 @@ def study_results(study: str | Path, warn: bool = True) -> StudyResults:
     candidates = [f for f in run_folders(study) if f.parent.parent.parent.name == "finetune" and (f / "result.json").exists()]
     if record is None and not candidates:
         raise ValueError(f"{study} is not a study folder (no study.json and no fine-tuning results)")
-    settings = None if record is None else record.get("settings", {})
+    settings = out.settings = None if record is None else record.get("settings", {})
     pairing = None if record is None else Pairing.from_record(record)
     listed: set[Path] = set()
     for row in [] if record is None else record.get("runs", []):
