@@ -1,7 +1,8 @@
 """The command line's own parts, shared by every ``sb3-cic`` command (:mod:`sb3_cic.cli`, the study's
 :mod:`sb3_cic.study.cli`, the reports' :mod:`sb3_cic.report.commands`, :mod:`sb3_cic.demo`,
 :mod:`sb3_cic.skill_video`): the parser (no abbreviated options, each default in ``--help``), the argparse
-``type`` of an option with a range (an error of one line naming the option, exit code 2), and ``--device``.
+``type`` of an option with a range (an error of one line naming the option, exit code 2), ``--device``, and
+the exception of a command interrupted by a signal.
 
 The ranges themselves sit beside what they validate (:mod:`sb3_cic.common.arguments`). Nothing heavy is imported
 here (torch only to read a ``--device`` other than ``auto``): ``--help`` stays fast.
@@ -10,6 +11,7 @@ here (torch only to read a ``--device`` other than ``auto``): ``--help`` stays f
 from __future__ import annotations
 
 import argparse
+import signal
 from typing import Any, Callable
 
 from sb3_cic.common.arguments import Range
@@ -82,3 +84,14 @@ def argument_parser(prog: str, description: str, **kwargs: Any) -> argparse.Argu
     """
     kwargs.setdefault("formatter_class", HelpFormatter)
     return argparse.ArgumentParser(prog=prog, description=description, allow_abbrev=False, **kwargs)
+
+
+class Interrupted(KeyboardInterrupt):
+    """SIGINT or SIGTERM during a command (``sb3-cic study``, ``protocol``).
+
+    :param signum: the signal
+    """
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum

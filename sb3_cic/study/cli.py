@@ -27,7 +27,7 @@ from sb3_cic.common.arguments import (
     STEPS,
     Range,
 )
-from sb3_cic.command_line import argument_parser, check_device_available, device_type, option_type
+from sb3_cic.command_line import Interrupted, argument_parser, check_device_available, device_type, option_type
 from sb3_cic.constants import DEFAULT_SNAPSHOTS, SMALL_SETTINGS
 from sb3_cic.envs.tasks import DOMAIN_TASKS
 from sb3_cic.study.settings import Settings
@@ -216,17 +216,6 @@ def settings_values(args: argparse.Namespace) -> dict[str, Any]:
     if args.checkpoint_every is not None:
         values.update(pretrain_checkpoint_every=args.checkpoint_every[0], finetune_checkpoint_every=args.checkpoint_every[-1])
     return values
-
-
-class Interrupted(KeyboardInterrupt):
-    """SIGINT or SIGTERM during ``sb3-cic study``.
-
-    :param signum: the signal
-    """
-
-    def __init__(self, signum: int) -> None:
-        super().__init__(signal.Signals(signum).name)
-        self.signum = signum
 
 
 @contextlib.contextmanager

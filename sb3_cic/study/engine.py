@@ -27,6 +27,7 @@ from typing import Any, Sequence
 
 from tqdm.auto import tqdm
 
+from sb3_cic.command_line import Interrupted
 from sb3_cic.common.arguments import NON_NEGATIVE_INT, check_argument
 from sb3_cic.protocol import finetune, pretrain
 from sb3_cic.study.checkpoint import RunFolder, process_start_time
@@ -166,13 +167,11 @@ def start_ray(
     :param log_to_driver: show the workers' output here
 
     The process's SIGTERM handler is kept (``ray.init`` installs its own, which ends the process with no word: a
-    SIGTERM while ``ray.init`` runs is :class:`~sb3_cic.study.cli.Interrupted` instead). A local instance runs its workers at
+    SIGTERM while ``ray.init`` runs is :class:`~sb3_cic.command_line.Interrupted` instead). A local instance runs its workers at
     this process's niceness: Ray's default (15) leaves a study's runs a few percent of a CPU that any other
     program keeps busy; ``RAY_worker_niceness`` in the environment still decides where it is set.
     """
     import ray
-
-    from sb3_cic.study.cli import Interrupted
 
     sigterm = signal.getsignal(signal.SIGTERM)
     unset = not address and "RAY_worker_niceness" not in os.environ
