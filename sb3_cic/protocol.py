@@ -20,7 +20,7 @@ import csv
 import json
 import math
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
@@ -41,46 +41,10 @@ from sb3_cic.study.checkpoint import RunFolder
 from sb3_cic.study.layout import pretrain_dir, snapshot_file, task_env_id, task_name
 from sb3_cic.study.record import Pairing, check_resume_settings, check_run_settings, write_run_settings
 from sb3_cic.study.run import Run
+from sb3_cic.study.run_result import FinetuneResult
 from sb3_cic.study.settings import Settings
 from sb3_cic.study.settings_record import run_identity, run_record
 from sb3_cic.study.snapshots import SnapshotCallback, check_pretraining, file_sha256, snapshot_steps
-
-
-@dataclass
-class FinetuneResult:
-    """What ``result.json`` of a fine-tuning run holds."""
-
-    method: str
-    label: str
-    domain: str
-    task: str
-    env_id: str
-    seed: int
-    from_scratch: bool
-    snapshot_steps: int | None
-    finetune_steps: int
-    final_return: float
-    final_normalized_score: float | None
-    expert_score: float | None
-    n_evaluations: int
-    finetune_skill: list[float] | None
-    #: the grid sweep's (candidate c, window return) pairs, when the skill was chosen by a sweep
-    skill_sweep: list[list[float]] | None
-    #: how the skill was chosen (the model's ``finetune_skill_choice``: ``sweep``, ``fixed``...; None: no skill)
-    finetune_skill_choice: str | None = None
-    #: the CIC variant of the pre-training (``paper`` or ``code``; None: a method without one)
-    cic_variant: str | None = None
-    #: the step of the checkpoint the run resumed from (0: it ran uninterrupted)
-    resumed_from_step: int = 0
-    #: the seed of the pre-training it started from (None: from scratch)
-    pretrain_seed: int | None = None
-    #: the sha256 of the snapshot it started from (None: from scratch)
-    snapshot_sha256: str | None = None
-    #: the settings of the process that can change its numbers (:func:`run_settings`)
-    run_settings: dict[str, Any] = field(default_factory=dict)
-    wall_time_s: dict[str, float | None] = field(default_factory=dict)
-    hyperparams: dict[str, str] = field(default_factory=dict)
-
 
 
 @dataclass
@@ -350,7 +314,7 @@ def write_finetune_files(
     run: Run, start: RunStart, origin: Origin, model: Any, callbacks: list[Any], evaluation: URLBEvalCallback,
     steps: int, wall: float, hyperparams: dict[str, Any],
 ) -> dict[str, Any]:
-    """Write a finished fine-tuning's ``eval.csv`` (its evaluations) and ``result.json`` (:class:`FinetuneResult`);
+    """Write a finished fine-tuning's ``eval.csv`` (its evaluations) and ``result.json`` (:class:`~sb3_cic.study.run_result.FinetuneResult`);
     return the latter's content.
 
     :param run: the fine-tuning

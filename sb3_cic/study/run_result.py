@@ -1,4 +1,5 @@
-"""A run's own files, read and checked: the ``result.json`` of a done run and a fine-tuning's ``eval.csv``.
+"""A run's own files: what a fine-tuning's ``result.json`` holds (:class:`FinetuneResult`), and the ``result.json``
+of a done run and a fine-tuning's ``eval.csv`` read and checked.
 
 The study's records (:mod:`sb3_cic.study.results`, :mod:`sb3_cic.study.graph`) and the reports
 (:mod:`sb3_cic.report`) read a run through :func:`read_run_result`.
@@ -9,10 +10,48 @@ from __future__ import annotations
 import csv
 import json
 import math
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+
+@dataclass
+class FinetuneResult:
+    """What ``result.json`` of a fine-tuning run holds."""
+
+    method: str
+    label: str
+    domain: str
+    task: str
+    env_id: str
+    seed: int
+    from_scratch: bool
+    snapshot_steps: int | None
+    finetune_steps: int
+    final_return: float
+    final_normalized_score: float | None
+    expert_score: float | None
+    n_evaluations: int
+    finetune_skill: list[float] | None
+    #: the grid sweep's (candidate c, window return) pairs, when the skill was chosen by a sweep
+    skill_sweep: list[list[float]] | None
+    #: how the skill was chosen (the model's ``finetune_skill_choice``: ``sweep``, ``fixed``...; None: no skill)
+    finetune_skill_choice: str | None = None
+    #: the CIC variant of the pre-training (``paper`` or ``code``; None: a method without one)
+    cic_variant: str | None = None
+    #: the step of the checkpoint the run resumed from (0: it ran uninterrupted)
+    resumed_from_step: int = 0
+    #: the seed of the pre-training it started from (None: from scratch)
+    pretrain_seed: int | None = None
+    #: the sha256 of the snapshot it started from (None: from scratch)
+    snapshot_sha256: str | None = None
+    #: the settings of the process that can change its numbers (:func:`run_settings`)
+    run_settings: dict[str, Any] = field(default_factory=dict)
+    wall_time_s: dict[str, float | None] = field(default_factory=dict)
+    hyperparams: dict[str, str] = field(default_factory=dict)
+
 
 #: what a fine-tuning's ``result.json`` must hold, and of which type
 FINETUNE_FIELDS: dict[str, type | tuple[type, ...]] = {
