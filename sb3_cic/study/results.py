@@ -191,18 +191,7 @@ def study_results(study: str | Path, warn: bool = True) -> StudyResults:
             expected = expected_fields(study, folder, settings, pairing)
             own = run_settings_of(folder)
             if own is not None:
-                _, snapshot, skill_choice = parse_label(expected["label"])
-                row = Run(expected["method"], expected["domain"], expected["task"], expected["seed"], snapshot,
-                          skill_choice=skill_choice).row()
-                if list(own["run"]) != row:
-                    raise ValueError(f"{folder / 'settings.json'} records the run {own['run']} but its place in the study is "
-                                     f"{row}: it was moved or copied; move it back or delete it")
-                if record is not None:
-                    diff = _settings_agree(settings or {}, pairing, own)
-                    if diff:
-                        raise ValueError(f"{folder / 'settings.json'} records other settings than {study_file(study)} "
-                                         f"{diff}: a run of another study, or one of the two files was changed; "
-                                         "delete the run folder or report it in its own study")
+                check_own_settings(study, folder, expected, own, None if record is None else (settings or {}), pairing)
             if record is None:
                 kind = "no_record"
             elif folder in listed:
@@ -223,6 +212,35 @@ def study_results(study: str | Path, warn: bool = True) -> StudyResults:
         out.kinds[kind] += 1
         out.results.append(result)
     return out
+
+
+def check_own_settings(
+    study: Path, folder: Path, expected: dict[str, Any], own: dict[str, Any], settings: dict[str, Any] | None,
+    pairing: Pairing | None,
+) -> None:
+    """``ValueError`` (one line) when a run folder's ``settings.json`` (``own``) records another run than its place in
+    the study (it was moved or copied), or other settings than the study's (``settings``; None: none recorded).
+
+    :param study: study folder
+    :param folder: the run folder
+    :param expected: what its place says (:func:`expected_fields`)
+    :param own: its ``settings.json``
+    :param settings: the study's recorded settings (None: no ``study.json``, nothing to compare)
+    :param pairing: the study's pairing
+    """
+    from sb3_cic.study.run import Run
+
+    _, snapshot, skill_choice = parse_label(expected["label"])
+    row = Run(expected["method"], expected["domain"], expected["task"], expected["seed"], snapshot,
+              skill_choice=skill_choice).row()
+    if list(own["run"]) != row:
+        raise ValueError(f"{folder / 'settings.json'} records the run {own['run']} but its place in the study is "
+                         f"{row}: it was moved or copied; move it back or delete it")
+    diff = None if settings is None else _settings_agree(settings, pairing, own)
+    if diff:
+        raise ValueError(f"{folder / 'settings.json'} records other settings than {study_file(study)} "
+                         f"{diff}: a run of another study, or one of the two files was changed; "
+                         "delete the run folder or report it in its own study")
 
 
 def _legacy_pretrain_seed(study: Path, expected: dict[str, Any]) -> int | None:
