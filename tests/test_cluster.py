@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
@@ -93,6 +94,7 @@ def cluster(monkeypatch: pytest.MonkeyPatch) -> Iterator[tuple[Cluster, RayProce
     monkeypatch.setenv("RAY_TMPDIR", str(base))
     # the nodes' workers at the test's niceness, as a local study has them (Ray's 15 starves them behind other work)
     monkeypatch.setenv("RAY_worker_niceness", str(os.nice(0)))
+    handlers = {signum: signal.getsignal(signum) for signum in (signal.SIGINT, signal.SIGTERM)}
     cluster = Cluster(
         initialize_head=True,
         head_node_args={
@@ -115,6 +117,8 @@ def cluster(monkeypatch: pytest.MonkeyPatch) -> Iterator[tuple[Cluster, RayProce
             except psutil.NoSuchProcess:
                 pass
         shutil.rmtree(base, ignore_errors=True)
+        for signum, handler in handlers.items():  # the head node started here installs Ray's own in this process
+            signal.signal(signum, handler)
 
 
 def node_of(cluster: Cluster, pid: int) -> ray._private.node.Node:

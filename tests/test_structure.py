@@ -193,3 +193,15 @@ def test_no_private_import_across_modules():
         if alias.name.startswith("_") and not alias.name.startswith("__")
     )
     assert not offenders, offenders
+
+
+def test_the_wheel_lists_every_package_of_the_tree():
+    """``pyproject.toml`` lists the packages explicitly (``envs/`` and ``zoo_configs/`` are installed under
+    ``sb3_cic``): a new folder of modules left out of the list is missing from the wheel (tests/test_wheel.py builds
+    it; this catches it in the quick tests)."""
+    import tomllib
+
+    listed = set(tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
+    folders = {name.rpartition(".")[0] for name, path in module_files().items() if path.name != "__init__.py"}
+    folders |= {name for name, path in module_files().items() if path.name == "__init__.py"}
+    assert folders - listed == set(), f"packages missing from pyproject.toml: {sorted(folders - listed)}"
