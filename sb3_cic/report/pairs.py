@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from sb3_cic.report.scores import pairing_kind
+from sb3_cic.study.layout import parse_label
 
 #: the pre-training kinds (:func:`~sb3_cic.report.scores.pairing_kind`) that a paired report counts
 COUNTED_KINDS: tuple[str, ...] = ("paired", "from_scratch")
@@ -60,7 +61,7 @@ def gather_results(studies: Sequence[str | Path], seeds: Sequence[int] | None = 
         out.runs_read[str(study)] = counted.describe()
         if not counted.results:
             raise ValueError(f"no fine-tuning results under {Path(study) / 'finetune'}")
-        finals = [r for r in counted.results if "@" not in r["label"]]
+        finals = [r for r in counted.results if parse_label(r["label"])[1] is None]  # not from an intermediate snapshot
         out.kinds[str(study)] = dict(Counter(pairing_kind(r) for r in finals))
         for result in finals:
             if seeds is not None and result["seed"] not in seeds:

@@ -13,6 +13,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from sb3_cic.study.layout import parse_label
+
 #: rliable aggregate metrics, in report order
 METRICS: tuple[str, ...] = ("IQM", "Median", "Mean", "Optimality Gap")
 
@@ -255,7 +257,7 @@ def published_comparison(results: list[dict[str, Any]], reps: int = 2000, seed: 
 
     scores: dict[str, dict[str, list[float]]] = defaultdict(lambda: defaultdict(list))
     for result in results:
-        if "@" not in result["label"] and result["final_normalized_score"] is not None:
+        if parse_label(result["label"])[1] is None and result["final_normalized_score"] is not None:  # final snapshots
             scores[result["label"]][result["task"]].append(result["final_normalized_score"])
     rows = _published_rows(scores)
     if not rows:
