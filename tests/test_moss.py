@@ -266,10 +266,9 @@ def test_rl_zoo_train_finetune_and_the_protocol(tmp_path: Path, monkeypatch: pyt
           "--eval-freq", "400", "--eval-episodes", "1", *small, "--hyperparams", "learning_starts:200"])
     run = tmp_path / "logs" / "moss" / "URLB-point_mass-reach-v0_1"
     config = yaml.load((run / "URLB-point_mass-reach-v0" / "config.yml").read_text(), Loader=yaml.UnsafeLoader)
-    callbacks = {next(iter(c)): next(iter(c.values())) for c in config["callback"]}
-    assert callbacks["sb3_cic.callbacks.SkillGridSweepCallback"] == {"sweep_steps": 200, "window": 50}
+    assert config["finetune_skill_choice"] == "sweep"  # learn's sweep: learning_starts (200) steps, windows of 50
     chosen = config["env_wrapper"][0]["sb3_cic.zoo.skill_wrapper"]["skill"]
-    assert len(chosen) == 32 and len(set(chosen)) == 1 and -1 <= chosen[0] <= 0
+    assert any(np.allclose(chosen, z) for z in MixtureSkillPrior(32).grid(4))
 
     settings = Settings(hidden_dim=32, batch_size=32, learning_starts=200, buffer_size=5000, pretrain_steps=600,
                         finetune_steps=400, eval_freq=400, eval_episodes=1, num_threads=1)

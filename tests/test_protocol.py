@@ -22,6 +22,7 @@ import yaml
 from sb3_cic.cli import main
 from sb3_cic.constants import EXPERT_SCORES
 from sb3_cic.report import figures, scores
+from sb3_cic.skills import UniformSkillPrior
 from sb3_cic.report.commands import write_report
 from sb3_cic.study.driver import run_protocol
 from sb3_cic.study.settings import Settings
@@ -167,9 +168,11 @@ def test_zoo_cli_train_finetune_enjoy(tmp_path: Path, monkeypatch: pytest.Monkey
     assert (run / "URLB-point_mass-reach-v0.zip").stat().st_size > 0
     config = yaml.load((run / "URLB-point_mass-reach-v0" / "config.yml").read_text(), Loader=yaml.UnsafeLoader)
     callbacks = {next(iter(c)): next(iter(c.values())) for c in config["callback"]}
-    assert callbacks["sb3_cic.callbacks.SkillGridSweepCallback"]["sweep_steps"] == 200  # = learning_starts
+    assert list(callbacks) == ["sb3_cic.callbacks.URLBEvalCallback"] and config["finetune_skill_choice"] == "sweep"
     assert callbacks["sb3_cic.callbacks.URLBEvalCallback"]["n_eval_episodes"] == 1
-    assert len(config["env_wrapper"][0]["sb3_cic.zoo.skill_wrapper"]["skill"]) == 64  # the chosen skill, for enjoy
+    chosen = np.array(config["env_wrapper"][0]["sb3_cic.zoo.skill_wrapper"]["skill"])  # the chosen skill, for enjoy
+    grid = UniformSkillPrior(64).grid(2)  # learn's sweep: learning_starts (200) steps, windows of 100
+    assert any(np.allclose(chosen, z) for z in grid) and not np.allclose(chosen, 0.5)
     assert not (run / "evaluations.npz").exists()  # rl-zoo's own EvalCallback is off; URLBEvalCallback evaluates
 
     from stable_baselines3.common.save_util import load_from_zip_file
@@ -178,6 +181,13 @@ def test_zoo_cli_train_finetune_enjoy(tmp_path: Path, monkeypatch: pytest.Monkey
     assert data["reward_free"] is False and data["num_timesteps"] == 500 and data["finetune_skill"] is not None
 
     main(["enjoy", "--algo", "cic", "--env", "URLB/point_mass-reach-v0", "--no-render", "-n", "20", "--deterministic"])
+    # the yaml's skill choice overridden: the code's fixed skill, no sweep
+    main(["finetune", "--algo", "cic", "--env", "URLB/point_mass-reach-v0", "-i", str(pretrained), "-n", "300",
+          "--eval-freq", "300", "--eval-episodes", "1", *small, "--hyperparams", "learning_starts:200",
+          "finetune_skill_choice:'fixed'"])
+    config = yaml.load((run.with_name("URLB-point_mass-reach-v0_2") / "URLB-point_mass-reach-v0" / "config.yml").read_text(),
+                       Loader=yaml.UnsafeLoader)
+    assert config["env_wrapper"][0]["sb3_cic.zoo.skill_wrapper"]["skill"] == [0.5] * 64
     capsys.readouterr()
     with pytest.raises(SystemExit) as exit_info:
         main(["train", "--algo", "cic", "--env", "URLB/point_mass-reach-v0", *small])
