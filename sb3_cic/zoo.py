@@ -29,7 +29,7 @@ from stable_baselines3.common.type_aliases import GymEnv
 
 from sb3_cic import envs  # noqa: F401  (registers the URLB ids)
 from sb3_cic.envs.skill_wrapper import SkillObservationWrapper
-from sb3_cic.constants import SMALL_SETTINGS
+from sb3_cic.constants import METHOD_VARIANTS, SMALL_SETTINGS
 from sb3_cic.ddpg import URLBDDPG
 
 #: folder of the rl-zoo yaml files (``zoo_configs/<algo>.yml`` of the repository, installed as the package
@@ -47,14 +47,10 @@ SMALL_HYPERPARAMS: dict[str, Any] = {
 BASELINES_BY_NAME_ONLY: tuple[str, ...] = ("fixed",)
 
 
-#: rl-zoo names of a method's variant, each with its own yaml (``zoo_configs/<name>.yml``): ``{name: class name}``
-VARIANTS: dict[str, str] = {"cic_code": "CIC"}
-
-
 def algorithms() -> dict[str, type[URLBDDPG]]:
     """The algorithms of this package by rl-zoo name: ``ddpg``/``urlbddpg`` (:class:`URLBDDPG`), every
     :class:`URLBDDPG` subclass of ``sb3_cic.methods.__all__``, lower-cased (``cic``, ``icm``...), and the
-    :data:`VARIANTS` (``cic_code``: CIC as the reference code runs it)."""
+    variants (:data:`~sb3_cic.constants.METHOD_VARIANTS`: ``cic_code``, CIC as the reference code runs it)."""
     import sb3_cic.methods as methods
 
     algos: dict[str, type[URLBDDPG]] = {"ddpg": URLBDDPG, "urlbddpg": URLBDDPG}
@@ -62,7 +58,7 @@ def algorithms() -> dict[str, type[URLBDDPG]]:
         cls = getattr(methods, name)
         if isinstance(cls, type) and issubclass(cls, URLBDDPG):
             algos[name.lower()] = cls
-    algos.update({name: getattr(methods, cls_name) for name, cls_name in VARIANTS.items()})
+    algos.update({name: algos[method] for name, method in METHOD_VARIANTS.items()})
     return algos
 
 

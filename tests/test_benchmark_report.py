@@ -15,6 +15,7 @@ from sb3_cic.constants import EXPERT_SCORES, PUBLISHED_RETURNS
 from sb3_cic.envs.tasks import URLB_TASKS
 from sb3_cic.report import benchmark, pairs, verdicts
 from sb3_cic.report.commands import write_benchmark_report
+from sb3_cic.study.layout import parse_label
 
 
 def write_run(study: Path, label: str, task: str, seed: int, final_return: float, pretrain_seed: int | None = -1) -> None:
@@ -24,7 +25,7 @@ def write_run(study: Path, label: str, task: str, seed: int, final_return: float
     folder.mkdir(parents=True)
     from_scratch = label == "ddpg"
     result = {
-        "method": label.partition("@")[0],
+        "method": parse_label(label)[0],
         "label": label,
         "domain": task.split("_")[0],
         "task": task,
@@ -203,6 +204,50 @@ def test_cic_the_one_method_good_on_all_domains():
     domains["jaco"]["apt"]["IQM"] = _interval(0.9)  # APT above DDPG everywhere too
     said = verdicts.one_good_on_all_domains(domains)
     assert said["word"] == "does not hold" and "other methods above ddpg in every domain: apt;" in said["figures"]
+
+
+def test_a_variant_of_cic_is_set_beside_cic_and_is_no_other_method(tmp_path):
+    """``cic_code+fixed`` (the reference code's variant with its fixed skill) is set beside Table 6's CIC and Table 5's,
+    is left out of the rank agreement (one row per published method), and is not another method good on all domains."""
+    studies = published_study(tmp_path)
+    for task, (mean, _) in PUBLISHED_RETURNS["cic"].items():
+        write_run(studies[0] if task.startswith("quadruped") else studies[1], "cic_code+fixed", task, 0, 1.1 * mean)
+    report = write_benchmark_report(studies, tmp_path / "out", reps=50)
+    assert benchmark.published_aggregates("cic_code+fixed", URLB_TASKS)["IQM"] == (0.77, "Table 5")
+    assert benchmark.published_aggregates("cic@100000", URLB_TASKS)["IQM"] == (None, "")  # another snapshot: none
+    rows = {(row["method"], row["domain"]): row for row in report["versus_published"]}
+    for domain in benchmark.URLB_DOMAINS:
+        variant, cic = rows["cic_code+fixed", domain], rows["cic", domain]
+        assert variant["published"] == cic["published"] and variant["ours"] == pytest.approx(1.1 * cic["ours"])
+    assert "cic_code+fixed" not in report["rank_agreement"]["all 12 tasks"]["methods"]
+    said = {v["claim"]: v for v in report["verdicts"]}
+    good = said["cic the one method whose IQM is above ddpg's in all three domains"]["figures"]
+    assert "cic_code" not in good and "other methods above ddpg in every domain: " in good
+    variants = {v["claim"]: v["word"] for v in report["cic_variant_verdicts"]}
+    assert variants["cic_code+fixed above cic by IQM over the 12 tasks"] in verdicts.WORDS
+    assert "cic_code+fixed above aps on every statistic over the 12 tasks" in variants
+    assert variants["cic's IQM over the 12 tasks above Table 5's CIC (0.770)"] in verdicts.WORDS
+    text = (tmp_path / "out" / "report.md").read_text()
+    assert "## CIC's variants and skill choices" in text
+    assert f"{1.1 * PUBLISHED_RETURNS['cic']['jaco_reach_top_left'][0]:.1f} / 153" in text  # beside Table 6's CIC
+
+
+def test_words_on_cics_variants():
+    iqm = lambda point, spread=0.02: {m: _interval(point, point - spread, point + spread) for m in  # noqa: E731
+                                      ("IQM", "Median", "Mean", "Optimality Gap")}
+    aggregates = {"cic": iqm(0.7), "cic_code+fixed": iqm(0.85), "cic_code+sweep": iqm(0.86), "aps": iqm(0.8),
+                  "protorl": iqm(0.6)}
+    domains = {"jaco": {"cic": iqm(0.4), "cic_code+fixed": iqm(0.7), "cic_code+sweep": iqm(0.5), "aps": iqm(0.6),
+                        "protorl": iqm(0.45)}}
+    said = {v["claim"]: v["word"] for v in verdicts.cic_variant_verdicts(aggregates, domains)}
+    assert said["cic_code+fixed above cic by IQM over the 12 tasks"] == "holds"
+    assert said["cic_code+sweep above cic_code+fixed by IQM over the 12 tasks"] == "undecided"  # the intervals overlap
+    assert said["cic above aps and protorl by IQM on jaco"] == "does not hold"
+    assert said["cic_code+fixed above aps and protorl by IQM on jaco"] == "holds"
+    assert said["cic_code+sweep above aps and protorl by IQM on jaco"] == "does not hold"  # below APS
+    assert said["cic_code+fixed's IQM over the 12 tasks above Table 5's CIC (0.770)"] == "holds"
+    assert said["cic's IQM over the 12 tasks above Table 5's CIC (0.770)"] == "does not hold"
+    assert verdicts.cic_variant_verdicts({"cic": iqm(0.7), "aps": iqm(0.8)}, {}) == []  # one label of CIC: nothing
 
 
 def test_published_order_words():

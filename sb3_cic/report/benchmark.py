@@ -39,8 +39,8 @@ from sb3_cic.constants import EXPERT_SCORES, PUBLISHED_AGGREGATES, PUBLISHED_RET
 from sb3_cic.envs.tasks import DOMAIN_TASKS, URLB_TASKS
 from sb3_cic.report.domains import domain_curves, versus_published
 from sb3_cic.report.pairs import Gathered, gather_results, pretraining_differences
-from sb3_cic.report.scores import METRICS, aggregate_scores, score_matrices
-from sb3_cic.report.verdicts import verdicts
+from sb3_cic.report.scores import METRICS, aggregate_scores, published_method, score_matrices
+from sb3_cic.report.verdicts import cic_variant_verdicts, verdicts
 
 #: URLB's domains, each with its four tasks (``walker_stand``...) in the paper's order
 URLB_DOMAINS: dict[str, tuple[str, ...]] = {
@@ -64,7 +64,9 @@ def task_means(results: list[dict[str, Any]]) -> dict[str, dict[str, list[float]
 
 
 def published_aggregates(label: str, tasks: Sequence[str]) -> dict[str, tuple[float | None, str]]:
-    """Table 5's four statistics of ``label`` over ``tasks``, each with where it comes from.
+    """Table 5's four statistics of ``label`` over ``tasks`` (those of the method it runs,
+    :func:`~sb3_cic.report.scores.published_method`: Table 6's CIC beside ``cic_code+fixed``), each with where it
+    comes from.
 
     Over the 12 tasks the published value (:data:`~sb3_cic.constants.PUBLISHED_AGGREGATES`) where there is one;
     otherwise the median and mean are computed from Table 6's per-task means (exact: rliable's median and mean are
@@ -73,10 +75,11 @@ def published_aggregates(label: str, tasks: Sequence[str]) -> dict[str, tuple[fl
     :return: ``{metric: (value or None, "Table 5" | "Table 6" | "")}``
     """
     out: dict[str, tuple[float | None, str]] = {metric: (None, "") for metric in METRICS}
+    method = published_method(label)
     if tuple(sorted(tasks)) == tuple(sorted(URLB_TASKS)):
-        for metric, value in PUBLISHED_AGGREGATES.get(label, {}).items():
+        for metric, value in PUBLISHED_AGGREGATES.get(method, {}).items():
             out[metric] = (value, "Table 5")
-    table = PUBLISHED_RETURNS.get(label)
+    table = PUBLISHED_RETURNS.get(method)
     if table is not None and all(task in table for task in tasks):
         scores = [table[task][0] / EXPERT_SCORES[task] for task in tasks]
         for metric, value in (("Median", float(np.median(scores))), ("Mean", float(np.mean(scores)))):
@@ -193,6 +196,8 @@ class BenchmarkReport:
     :param curves: ``{domain: {label: learning curve}}`` (:func:`~sb3_cic.report.domains.domain_curves`)
     :param versus_published: per method and domain, ours beside Table 6's (:func:`~sb3_cic.report.domains.versus_published`)
     :param verdicts: the seed's claims and MOSS above CIC, each with its word (:func:`~sb3_cic.report.verdicts.verdicts`)
+    :param variant_verdicts: whether CIC's variant or skill choice moves its standing, where there are several labels
+        of CIC (:func:`~sb3_cic.report.verdicts.cic_variant_verdicts`)
     """
 
     studies: list[str]
@@ -210,6 +215,7 @@ class BenchmarkReport:
     curves: dict[str, dict[str, dict[str, Any]]]
     versus_published: list[dict[str, Any]]
     verdicts: list[dict[str, str]]
+    variant_verdicts: list[dict[str, str]]
 
     @property
     def results(self) -> list[dict[str, Any]]:
@@ -232,6 +238,7 @@ class BenchmarkReport:
             "learning_curves": self.curves,
             "versus_published": self.versus_published,
             "verdicts": self.verdicts,
+            "cic_variant_verdicts": self.variant_verdicts,
         }
 
 
@@ -290,4 +297,5 @@ def build_benchmark_report(
         curves=domain_curves(results, URLB_DOMAINS),
         versus_published=versus_published(ours, URLB_DOMAINS),
         verdicts=verdicts(aggregates, domains if len(domains) == len(URLB_DOMAINS) else {}, agreement),
+        variant_verdicts=cic_variant_verdicts(aggregates, domains),
     )

@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 
 from sb3_cic.constants import EXPERT_SCORES, PUBLISHED_RETURNS
+from sb3_cic.report.scores import published_method
 
 
 def _run_curves(results: list[dict[str, Any]], label: str, tasks: tuple[str, ...]) -> tuple[np.ndarray, list[np.ndarray]]:
@@ -53,8 +54,9 @@ def domain_curves(results: list[dict[str, Any]], domains: dict[str, tuple[str, .
 def versus_published(
     returns: dict[str, dict[str, list[float]]], domains: dict[str, tuple[str, ...]]
 ) -> list[dict[str, Any]]:
-    """Per Table 6 method and domain it ran in full: its mean normalised score over the domain's tasks (each task's
-    mean over runs) beside Table 6's.
+    """Per label of a Table 6 method (or of a variant of one, :func:`~sb3_cic.report.scores.published_method`) and
+    domain it ran in full: its mean normalised score over the domain's tasks (each task's mean over runs) beside
+    Table 6's.
 
     :param returns: ``{label: {task: [final return per run]}}``
     :param domains: ``{domain: its tasks}``
@@ -62,7 +64,7 @@ def versus_published(
     """
     rows = []
     for label in sorted(returns):
-        table = PUBLISHED_RETURNS.get(label)
+        table = PUBLISHED_RETURNS.get(published_method(label))
         for domain, tasks in domains.items():
             if table is None or not all(returns[label].get(task) for task in tasks):
                 continue

@@ -12,7 +12,7 @@ from sb3_cic.constants import PUBLISHED_RETURNS
 from sb3_cic.envs.tasks import URLB_TASKS
 from sb3_cic.report.benchmark import ALL_12, EXACT_PERMUTATIONS_UP_TO, URLB_DOMAINS, BenchmarkReport
 from sb3_cic.report.figures import DOMAINS, LEARNING_CURVES, VERSUS_PUBLISHED, aggregates_name
-from sb3_cic.report.scores import METRICS, PAIRING_KINDS, describe_pairing
+from sb3_cic.report.scores import METRICS, PAIRING_KINDS, describe_pairing, published_method
 from sb3_cic.report.study_report import StudyReport
 from sb3_cic.report.text import fmt, pm, short_name
 from sb3_cic.report.verdicts import WORDS
@@ -151,7 +151,8 @@ def aggregate_table(
 
 
 def _per_task_beside_table6(returns: dict[str, dict[str, list[float]]]) -> list[str]:
-    """Per task, each method's mean final return over its seeds beside Table 6's."""
+    """Per task, each method's mean final return over its seeds beside Table 6's (the method it runs: a variant's,
+    :func:`~sb3_cic.report.scores.published_method`)."""
     labels = sorted(returns)
     lines = ["| task | " + " | ".join(labels) + " |", "|---|" + "---:|" * len(labels)]
     for task in URLB_TASKS:
@@ -159,7 +160,7 @@ def _per_task_beside_table6(returns: dict[str, dict[str, list[float]]]) -> list[
         for label in labels:
             runs = returns[label].get(task)
             mine = f"{np.mean(runs):.1f}" + (f" (n={len(runs)})" if runs and len(runs) > 1 else "") if runs else "–"
-            table = PUBLISHED_RETURNS.get(label, {}).get(task)
+            table = PUBLISHED_RETURNS.get(published_method(label), {}).get(task)
             cells.append(mine + (f" / {table[0]:g}±{table[1]:g}" if table else ""))
         lines.append(f"| {task} | " + " | ".join(cells) + " |")
     return lines
@@ -256,16 +257,28 @@ def _differences(differences: dict[str, Any] | None) -> list[str]:
     return lines + [""]
 
 
+def _verdict_lines(said: list[dict[str, str]]) -> list[str]:
+    """Each claim with its word and its figures, and how many of each word."""
+    lines = [f"- {v['claim']}: **{v['word']}** ({v['figures']})." for v in said]
+    counts = ", ".join(f"{sum(v['word'] == word for v in said)} {word}" for word in WORDS)
+    return lines + ["", f"Verdicts: {counts}.", ""]
+
+
 def _verdicts(report: BenchmarkReport) -> list[str]:
-    """Each claim with its word and its figures."""
+    """The seed's claims, then CIC's variants (where the report has several labels of CIC)."""
     lines = ["## The seed's claims, and MOSS above CIC", "",
              "Holds: the intervals do not overlap, on the claim's side; does not hold: they do not overlap, on the other "
              "side; undecided: they overlap (the order: Spearman's interval over the methods and runs against 0). A "
              "statistic shown without an interval is a method's with one run per task: its interval is a point, and a "
              "verdict on it rests on one draw.", ""]
-    lines += [f"- {v['claim']}: **{v['word']}** ({v['figures']})." for v in report.verdicts]
-    counts = ", ".join(f"{sum(v['word'] == word for v in report.verdicts)} {word}" for word in WORDS)
-    return lines + ["", f"Verdicts: {counts}.", ""]
+    lines += _verdict_lines(report.verdicts)
+    if report.variant_verdicts:
+        lines += ["## CIC's variants and skill choices", "",
+                  "`cic`: the paper's variant with the skill grid sweep (the defaults); `cic_code`: the reference code's "
+                  "variant, `+fixed` with its skill fixed at 0.5 (as the code, and Table 6), `+sweep` with the grid "
+                  "sweep. Each against APS, ProtoRL, each other and Table 5, with the words above.", ""]
+        lines += _verdict_lines(report.variant_verdicts)
+    return lines
 
 
 def render_benchmark(report: BenchmarkReport) -> str:

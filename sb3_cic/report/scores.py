@@ -13,6 +13,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from sb3_cic.constants import METHOD_VARIANTS
 from sb3_cic.study.layout import parse_label
 
 #: rliable aggregate metrics, in report order
@@ -20,6 +21,14 @@ METRICS: tuple[str, ...] = ("IQM", "Median", "Mean", "Optimality Gap")
 
 #: the pre-training kinds of a fine-tuning (:func:`pairing_kind`)
 PAIRING_KINDS: tuple[str, ...] = ("paired", "shared", "from_scratch", "unknown")
+
+
+def published_method(label: str) -> str | None:
+    """The method whose published numbers ``label`` is set beside: its method, or the one a variant runs
+    (``cic_code+fixed``: ``cic``; :data:`~sb3_cic.constants.METHOD_VARIANTS`), whatever its skill choice; None for a
+    label fine-tuned from another snapshot than the final one (the published runs fine-tune the final one)."""
+    method, snapshot, _ = parse_label(label)
+    return None if snapshot is not None else METHOD_VARIANTS.get(method, method)
 
 
 def load_results(study: str | Path) -> list[dict[str, Any]]:

@@ -10,9 +10,11 @@ otherwise. With one run per task the aggregates' intervals are points: a verdict
 
 from __future__ import annotations
 
+from itertools import combinations
 from typing import Any, Iterable
 
-from sb3_cic.report.scores import METRICS
+from sb3_cic.constants import PUBLISHED_AGGREGATES
+from sb3_cic.report.scores import METRICS, published_method
 from sb3_cic.report.text import fmt
 
 HOLDS, DOES_NOT_HOLD, UNDECIDED = "holds", "does not hold", "undecided"
@@ -63,10 +65,13 @@ def above_on_every_statistic(aggregates: dict[str, Any], label: str, rival: str)
 
 def one_good_on_all_domains(domains: dict[str, Any], label: str = "cic", baseline: str = "ddpg") -> dict[str, str] | None:
     """``label`` the one method good on all three domains: its IQM above ``baseline``'s (DDPG from scratch) in every
-    domain, and no other method's (None without every domain or without the two methods)."""
+    domain, and no other method's (None without every domain or without the two methods). The other methods are
+    the labels named for a method alone: a variant, a skill choice or another snapshot of a method (``cic_code+fixed``,
+    ``cic@100000``) is none (:func:`~sb3_cic.report.scores.published_method`)."""
     if not domains or not all(label in agg and baseline in agg for agg in domains.values()):
         return None
-    labels = sorted(set.intersection(*(set(agg) for agg in domains.values())) - {baseline})
+    shared = set.intersection(*(set(agg) for agg in domains.values())) - {baseline}
+    labels = sorted(m for m in shared if m == label or (published_method(m) == m and m != published_method(label)))
     good = {m: all_of(above(agg[m]["IQM"], agg[baseline]["IQM"]) for agg in domains.values()) for m in labels}
     word = all_of([good[label]] + [negation(good[m]) for m in labels if m != label])
     mine = "; ".join(f"{d} {interval(agg[label]['IQM'])} against {interval(agg[baseline]['IQM'])}" for d, agg in domains.items())
@@ -87,6 +92,43 @@ def published_order(name: str, row: dict[str, Any] | None) -> dict[str, str] | N
     figures = (f"Spearman {fmt(row['rho'])} [{fmt(row['joint_low'])}, {fmt(row['joint_high'])}] over "
                f"{len(row['methods'])} methods, permutation p {fmt(row['p_permutation'])}")
     return {"claim": f"Table 6's order of the methods on {name}", "word": word, "figures": figures}
+
+
+def _iqm_above(aggregates: dict[str, Any], label: str, rivals: Iterable[str], where: str) -> dict[str, str] | None:
+    """``label``'s IQM above each of ``rivals``' (those in ``aggregates``), ``where`` naming the tasks (None without
+    ``label`` or a rival)."""
+    rivals = [rival for rival in rivals if rival in aggregates]
+    if label not in aggregates or not rivals:
+        return None
+    mine = aggregates[label]["IQM"]
+    word = all_of(above(mine, aggregates[rival]["IQM"]) for rival in rivals)
+    figures = "; ".join(f"{interval(mine)} against {rival}'s {interval(aggregates[rival]['IQM'])}" for rival in rivals)
+    return {"claim": f"{label} above {' and '.join(rivals)} by IQM {where}", "word": word, "figures": figures}
+
+
+def cic_variant_verdicts(aggregates: dict[str, Any], domains: dict[str, Any]) -> list[dict[str, str]]:
+    """Whether CIC's variant or skill choice moves its standing, where a report has more than one label of CIC
+    (``cic``, ``cic_code+fixed``, ``cic_code+sweep``...; :func:`~sb3_cic.report.scores.published_method`): each
+    other label above APS and above ProtoRL on every statistic over the 12 tasks; each label above each other by IQM
+    (the later in sorted order above the earlier); each above APS and ProtoRL by IQM on jaco; each one's IQM above
+    Table 5's CIC (a point). Empty with one label of CIC.
+
+    :param aggregates: ``{label: {metric: {"point", "low", "high"}}}`` over the 12 tasks
+    :param domains: ``{domain: aggregates over its tasks}``
+    """
+    labels = sorted(label for label in aggregates if published_method(label) == "cic")
+    if len(labels) < 2:
+        return []
+    said = [above_on_every_statistic(aggregates, label, rival) for label in labels if label != "cic"
+            for rival in ("aps", "protorl")]
+    said += [_iqm_above(aggregates, later, [earlier], "over the 12 tasks") for earlier, later in combinations(labels, 2)]
+    said += [_iqm_above(domains.get("jaco", {}), label, ["aps", "protorl"], "on jaco") for label in labels]
+    table5 = PUBLISHED_AGGREGATES["cic"]["IQM"]
+    for label in labels:
+        mine = aggregates[label]["IQM"]
+        said.append({"claim": f"{label}'s IQM over the 12 tasks above Table 5's CIC ({fmt(table5)})",
+                     "word": above(mine, {"low": table5, "high": table5}), "figures": interval(mine)})
+    return [verdict for verdict in said if verdict is not None]
 
 
 def verdicts(
