@@ -22,6 +22,7 @@ import pytest
 import ray
 import torch as th
 
+import sb3_cic
 from sb3_cic.cli import main
 from sb3_cic.study.driver import run_protocol
 from sb3_cic.study.settings import Settings
@@ -55,9 +56,19 @@ FLAGS = [
 
 
 @pytest.fixture(scope="module")
-def ray_instance():
+def ray_instance(tmp_path_factory: pytest.TempPathFactory):
+    """A local instance started from inside a folder with another ``sb3_cic`` (a decoy that cannot be imported), as
+    a study driven from inside another source checkout: the workers must import this one."""
     threads = th.get_num_threads()
-    start_ray(workers=2)
+    decoy = tmp_path_factory.mktemp("checkout")
+    (decoy / "sb3_cic").mkdir()
+    (decoy / "sb3_cic" / "__init__.py").write_text("raise ImportError('the sb3_cic of the working directory')\n")
+    here = os.getcwd()
+    os.chdir(decoy)
+    try:
+        start_ray(workers=2)
+    finally:
+        os.chdir(here)
     yield
     ray.shutdown()
     th.set_num_threads(threads)
@@ -87,6 +98,19 @@ def study(ray_instance, tmp_path_factory: pytest.TempPathFactory) -> Path:
                                pairing="shared")
     assert len(runs) == 9 and [s["state"] for s in statuses] == ["done"] * 9
     return path
+
+
+def test_local_workers_import_the_drivers_package(ray_instance):
+    """Ray starts its workers in the driver's working directory with it first on ``sys.path``; the fixture started
+    Ray inside a folder with a decoy ``sb3_cic``."""
+
+    @ray.remote(num_cpus=1)
+    def package() -> str:
+        import sb3_cic
+
+        return sb3_cic.__file__
+
+    assert ray.get(package.remote()) == sb3_cic.__file__
 
 
 def test_local_workers_run_at_the_drivers_niceness(ray_instance):

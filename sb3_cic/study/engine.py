@@ -14,16 +14,18 @@ it writes in the folder afterwards, and the same command resumes the study.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 from dataclasses import dataclass
 import math
 import os
 import signal
 import socket
+import tempfile
 import time
 import traceback
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Iterator, Sequence
 
 from tqdm.auto import tqdm
 
@@ -167,31 +169,56 @@ def start_ray(
     :param log_to_driver: show the workers' output here
 
     The process's SIGTERM handler is kept (``ray.init`` installs its own, which ends the process with no word: a
-    SIGTERM while ``ray.init`` runs is :class:`~sb3_cic.command_line.Interrupted` instead). A local instance runs its workers at
-    this process's niceness: Ray's default (15) leaves a study's runs a few percent of a CPU that any other
-    program keeps busy; ``RAY_worker_niceness`` in the environment still decides where it is set.
+    SIGTERM while ``ray.init`` runs is :class:`~sb3_cic.command_line.Interrupted` instead). A local instance's
+    workers (:func:`_local_workers`) run at this process's niceness and import the package this process imported.
     """
     import ray
 
     sigterm = signal.getsignal(signal.SIGTERM)
-    unset = not address and "RAY_worker_niceness" not in os.environ
-    if unset:  # the raylet, started here, passes it to the workers it starts
-        os.environ["RAY_worker_niceness"] = str(os.nice(0))
     try:
         if address:
             ray.init(address=address, log_to_driver=log_to_driver)
         else:
-            ray.init(num_cpus=math.ceil(workers * cpus_per_run), num_gpus=math.ceil(workers * gpus_per_run),
-                     include_dashboard=False, log_to_driver=log_to_driver)
+            with _local_workers():
+                ray.init(num_cpus=math.ceil(workers * cpus_per_run), num_gpus=math.ceil(workers * gpus_per_run),
+                         include_dashboard=False, log_to_driver=log_to_driver)
     except SystemExit as exit_:  # Ray's SIGTERM handler, in place while ray.init runs, exits with no word
         if exit_.code != signal.SIGTERM:
             raise
         raise Interrupted(signal.SIGTERM) from None
     finally:
-        if unset:
-            del os.environ["RAY_worker_niceness"]
         if sigterm is not None:  # Ray's driver aborts on SIGTERM with a stack dump: the command's own handler stays
             signal.signal(signal.SIGTERM, sigterm)
+
+
+@contextlib.contextmanager
+def _local_workers() -> Iterator[None]:
+    """While a local Ray instance starts, what its raylet passes on to the workers it starts:
+
+    * this process's niceness (``RAY_worker_niceness``): Ray's default (15) leaves a study's runs a few percent of a
+      CPU that any other program keeps busy; set in the environment, it still decides;
+    * this package: Ray puts the driver's working directory first on its workers' ``sys.path`` and starts them there,
+      so a study driven from inside another source checkout would run that checkout's ``sb3_cic``. The working
+      directory is the temporary folder while Ray starts (the runs' paths are absolute), and where this process
+      imported ``sb3_cic`` from its working directory (``python -m`` in a checkout), ``PYTHONPATH`` begins with it.
+    """
+    import sb3_cic
+
+    saved = {name: os.environ.get(name) for name in ("RAY_worker_niceness", "PYTHONPATH")}
+    here = os.getcwd()
+    os.environ.setdefault("RAY_worker_niceness", str(os.nice(0)))
+    if Path(sb3_cic.__file__).resolve().parent.parent == Path(here).resolve():
+        os.environ["PYTHONPATH"] = os.pathsep.join(p for p in (here, saved["PYTHONPATH"]) if p)
+    os.chdir(tempfile.gettempdir())
+    try:
+        yield
+    finally:
+        os.chdir(here)
+        for name, value in saved.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
 
 
 @dataclass
