@@ -217,6 +217,9 @@ def passthrough_parser(command: str) -> argparse.ArgumentParser:
     )
     parser.add_argument("--zoo-help", action="store_true", help=f"rl-zoo's {command.replace('-', '_')} options")
     parser.add_argument("-f", "--folder", default="logs", help="log folder")
+    if command == "enjoy":  # rl-zoo's record_video has no --device
+        parser.add_argument("--device", type=device_type, default=None,
+                            help="torch device (default: rl-zoo's, auto: CUDA if any); cuda without one is refused")
     _add_zoo_options(parser, command)
     return parser
 
@@ -227,7 +230,10 @@ def _passthrough_args(argv: Sequence[str], command: str) -> list[str]:
         return ["--help"]
     known, rest = passthrough_parser(command).parse_known_args(list(argv))
     _check_zoo_options(rest, command.replace("-", "_"))
-    return ["-f", known.folder, *_zoo_options(known, command), *rest]
+    device = getattr(known, "device", None)
+    if device is not None:
+        check_device_available(device)
+    return ["-f", known.folder, *_zoo_options(known, command), *rest, *(["--device", device] if device else [])]
 
 
 def zoo_parser(command: str) -> argparse.ArgumentParser:

@@ -239,6 +239,7 @@ def test_finetune_on_the_reward_free_id_is_refused(workdir, capsys):
     ["protocol", "--device", "cuda", "--study", "s"],
     ["study", "s", "--methods", "ddpg", "--domains", "walker", "--tasks", "stand", "--device", "cuda:0"],
     ["train", "--algo", "cic", "--env", "URLB/walker-v0", "--small", "--device", "cuda"],
+    ["enjoy", "--algo", "cic", "--env", "URLB/walker-flip-v0", "--device", "cuda"],
 ])
 def test_cuda_without_cuda_is_refused(arguments, workdir, capsys, monkeypatch):
     monkeypatch.setattr(th.cuda, "is_available", lambda: False)
