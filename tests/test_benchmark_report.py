@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -161,8 +162,33 @@ def test_one_run_in_two_studies_is_refused(tmp_path):
     a, b = tmp_path / "a", tmp_path / "b"
     write_run(a, "cic", "walker_flip", 0, 600.0)
     write_run(b, "cic", "walker_flip", 0, 500.0)
-    with pytest.raises(ValueError, match="in both"):
+    with pytest.raises(ValueError, match="in both .* with other evaluations"):
         pairs.gather_results([a, b])
+    # the same final return, another evaluation on the way: two runs, not one made twice
+    shutil.rmtree(b / "finetune" / "cic" / "walker_flip")
+    write_run(a, "cic", "walker_run", 0, 300.0)
+    write_run(b, "cic", "walker_run", 0, 300.0)
+    (b / "finetune" / "cic" / "walker_run" / "seed_0" / "eval.csv").write_text(
+        "timestep,mean_return,std_return\n0,1.0,0.0\n100000,300.0,0.0\n")
+    with pytest.raises(ValueError, match="walker_run.*with other evaluations"):
+        pairs.gather_results([a, b])
+
+
+def test_one_run_made_twice_is_counted_once_and_said(tmp_path):
+    """DDPG from scratch at one seed and settings in two studies (the quadruped study's seed 1 and the paired seed-1
+    study): the same evaluations, one run."""
+    studies = published_study(tmp_path)
+    again = tmp_path / "again"
+    for task in ("quadruped_run", "quadruped_walk"):
+        write_run(again, "ddpg", task, 0, PUBLISHED_RETURNS["ddpg"][task][0])
+    gathered = pairs.gather_results([*studies, again])
+    assert len(gathered.results) == sum(len(table) for table in PUBLISHED_RETURNS.values())
+    assert [(r["task"], r["studies"][1]) for r in gathered.repeated] == [("quadruped_run", str(again)),
+                                                                         ("quadruped_walk", str(again))]
+    write_benchmark_report([*studies, again], tmp_path / "out", reps=50)
+    text = (tmp_path / "out" / "report.md").read_text()
+    assert "one run made twice and counted once, from the first folder (2 runs)" in text
+    assert f"- ddpg seed 0: quadruped_run, quadruped_walk (`{tmp_path.name}/quadruped`, `{tmp_path.name}/again`)" in text
 
 
 def test_snapshot_labels_left_out(tmp_path):

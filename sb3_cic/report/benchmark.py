@@ -230,6 +230,7 @@ class BenchmarkReport:
             "runs_read": self.gathered.runs_read,
             "pre_training_kinds": self.gathered.kinds,
             "left_out": self.gathered.left_out,
+            "repeated": self.gathered.repeated,
             "returns": {label: dict(tasks) for label, tasks in self.returns.items()},
             "aggregates": self.aggregates,
             "domains": self.domains,

@@ -223,6 +223,14 @@ def _runs_read(report: BenchmarkReport) -> list[str]:
         lines += [f"Left out of every table and figure ({len(report.gathered.left_out)} runs at these seeds, not paired):", ""]
         lines += [f"- `{study}`: {label} seed {seed} from the pre-training of seed {'unknown' if pre is None else pre} "
                   f"({len(tasks)} task{'s' if len(tasks) > 1 else ''})" for (study, label, seed, pre), tasks in groups.items()]
+    repeated: dict[tuple, list[str]] = {}
+    for run in report.gathered.repeated:
+        repeated.setdefault((run["label"], run["seed"], *map(short_name, run["studies"])), []).append(run["task"])
+    if repeated:
+        lines += ["", f"Found in two folders with the same evaluations at every step, one run made twice and counted "
+                  f"once, from the first folder ({len(report.gathered.repeated)} runs):", ""]
+        lines += [f"- {label} seed {seed}: {', '.join(tasks)} (`{first}`, `{second}`)"
+                  for (label, seed, first, second), tasks in repeated.items()]
     return lines + [""]
 
 

@@ -15,6 +15,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
 
+import numpy as np
+
 from sb3_cic.report.scores import pairing_kind
 from sb3_cic.study.layout import parse_label
 
@@ -32,12 +34,23 @@ class Gathered:
     :param kinds: ``{study: {pre-training kind: runs}}`` of its final-snapshot fine-tunings, before the seeds were chosen
     :param left_out: the runs of the seeds asked for that are neither paired nor from scratch: each one's study,
         label, task, seed and pre-training seed
+    :param repeated: the runs found in two folders with the same evaluations (:func:`same_run`), counted once (from
+        the first folder): each one's label, task, seed and the two folders
     """
 
     results: list[dict[str, Any]] = field(default_factory=list)
     runs_read: dict[str, list[str]] = field(default_factory=dict)
     kinds: dict[str, dict[str, int]] = field(default_factory=dict)
     left_out: list[dict[str, Any]] = field(default_factory=list)
+    repeated: list[dict[str, Any]] = field(default_factory=list)
+
+
+def same_run(a: dict[str, Any], b: dict[str, Any]) -> bool:
+    """Whether two fine-tuning results are one run made twice: the same pre-training seed, the same final return and
+    the same evaluation at every step (``eval.csv``: e.g. DDPG from scratch at one seed and settings, in two studies)."""
+    (steps_a, returns_a), (steps_b, returns_b) = a["curve"], b["curve"]
+    return (a["pretrain_seed"] == b["pretrain_seed"] and a["final_return"] == b["final_return"]
+            and np.array_equal(steps_a, steps_b) and np.array_equal(returns_a, returns_b))
 
 
 def gather_results(studies: Sequence[str | Path], seeds: Sequence[int] | None = None) -> Gathered:
@@ -49,8 +62,9 @@ def gather_results(studies: Sequence[str | Path], seeds: Sequence[int] | None = 
 
     :param studies: study folders
     :param seeds: fine-tuning seeds to keep (None: all)
-    :raises ValueError: a folder without results, one (label, task, seed) in two folders, or studies made with other
-        settings (:func:`check_same_settings`)
+    :raises ValueError: a folder without results, one (label, task, seed) in two folders with other evaluations (with
+        the same: one run made twice, counted once and named in ``repeated``), or studies made with other settings
+        (:func:`check_same_settings`)
     """
     from sb3_cic.study.results import study_results
 
@@ -71,8 +85,13 @@ def gather_results(studies: Sequence[str | Path], seeds: Sequence[int] | None = 
                 continue
             key = (result["label"], result["task"], result["seed"])
             if key in origin:
-                raise ValueError(f"{key} is in both {origin[key]} and {study}: give each run once")
-            origin[key] = str(study)
+                if not same_run(origin[key], result):
+                    raise ValueError(f"{key} is in both {origin[key]['study']} and {study} with other evaluations: "
+                                     "give each run once")
+                out.repeated.append({"label": key[0], "task": key[1], "seed": key[2],
+                                     "studies": [origin[key]["study"], str(study)]})
+                continue
+            origin[key] = result
             result["study"] = str(study)
             out.results.append(result)
     check_same_settings(settings)
