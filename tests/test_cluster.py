@@ -92,8 +92,9 @@ def cluster(monkeypatch: pytest.MonkeyPatch) -> Iterator[tuple[Cluster, RayProce
     # the address file Cluster writes (ray_current_cluster) and the sessions go here, not into the default Ray
     # folder that another Ray instance of this machine may use
     monkeypatch.setenv("RAY_TMPDIR", str(base))
-    # the nodes' workers at the test's niceness, as a local study has them (Ray's 15 starves them behind other work)
-    monkeypatch.setenv("RAY_worker_niceness", str(os.nice(0)))
+    # the nodes' workers at the test's niceness, as a local study has them (Ray's 15 starves them behind other work):
+    # Ray adds RAY_worker_niceness to the niceness its raylet inherited from this process
+    monkeypatch.setenv("RAY_worker_niceness", "0")
     handlers = {signum: signal.getsignal(signum) for signum in (signal.SIGINT, signal.SIGTERM)}
     cluster = Cluster(
         initialize_head=True,

@@ -195,8 +195,9 @@ def start_ray(
 def _local_workers() -> Iterator[None]:
     """While a local Ray instance starts, what its raylet passes on to the workers it starts:
 
-    * this process's niceness (``RAY_worker_niceness``): Ray's default (15) leaves a study's runs a few percent of a
-      CPU that any other program keeps busy; set in the environment, it still decides;
+    * this process's niceness: ``RAY_worker_niceness`` is what the raylet adds to its own (this process's), 0 here;
+      Ray's default (15) leaves a study's runs a few percent of a CPU that any other program keeps busy; set in the
+      environment, it still decides;
     * this package: Ray puts the driver's working directory first on its workers' ``sys.path`` and starts them there,
       so a study driven from inside another source checkout would run that checkout's ``sb3_cic``. The working
       directory is the temporary folder while Ray starts (the runs' paths are absolute), and where this process
@@ -206,7 +207,7 @@ def _local_workers() -> Iterator[None]:
 
     saved = {name: os.environ.get(name) for name in ("RAY_worker_niceness", "PYTHONPATH")}
     here = os.getcwd()
-    os.environ.setdefault("RAY_worker_niceness", str(os.nice(0)))
+    os.environ.setdefault("RAY_worker_niceness", "0")
     if Path(sb3_cic.__file__).resolve().parent.parent == Path(here).resolve():
         os.environ["PYTHONPATH"] = os.pathsep.join(p for p in (here, saved["PYTHONPATH"]) if p)
     os.chdir(tempfile.gettempdir())
