@@ -25,8 +25,8 @@ EXPERT_SCORES: dict[str, float] = {
     "jaco_reach_bottom_right": 203.0,
 }
 
-#: rl-zoo names of a method's variants, each with its own yaml (``zoo_configs/<name>.yml``): ``{variant: the rl-zoo
-#: name of the method it runs}``; ``cic_code``: CIC as the reference code runs it, set beside Table 6's CIC
+#: the rl-zoo names of a method's variants (each with its own yaml, ``zoo_configs/<name>.yml``), each with the rl-zoo
+#: name of the method it runs; ``cic_code``: CIC as the reference code runs it, set beside Table 6's CIC
 METHOD_VARIANTS: dict[str, str] = {"cic_code": "cic"}
 
 #: the CIC paper's Table 5 (state-based URLB, 2M pre-training, 100k fine-tuning, 10 seeds x 12 tasks): rliable's
