@@ -347,9 +347,14 @@ def test_published_comparison_against_table_6():
                for m in methods for t in tasks for s in range(3)]
     results += [_synthetic("cic@100000", t, 0, 0.0) for t in tasks]  # an intermediate snapshot: not compared
     results += [_synthetic("moss", "quadruped_stand", s, 0.5) for s in range(2)]
+    # CIC's code variant and a skill choice: beside CIC's published numbers, not in the rank correlation
+    results += [_synthetic(label, t, 0, 0.0) for label in ("cic_code+fixed", "cic+fixed") for t in tasks]
     out = scores.published_comparison(results, reps=200)
     rows = {r["method"]: r for r in out["methods"]}
-    assert set(rows) == {*methods, "moss"} and rows["moss"]["source"] == "MOSS"
+    assert set(rows) == {*methods, "moss", "cic_code+fixed", "cic+fixed"} and rows["moss"]["source"] == "MOSS"
+    for label in ("cic_code+fixed", "cic+fixed"):
+        assert rows[label]["published"] == rows["cic"]["published"] and rows[label]["ours"] == 0.0
+        assert not rows[label]["ranked"] and rows["cic"]["ranked"]
     assert rows["moss"]["published"] == pytest.approx(MOSS_PUBLISHED_RETURNS["moss"]["quadruped_stand"][0] / 920)
     for m in methods:
         assert rows[m]["published"] == pytest.approx(published[m]) and rows[m]["ours"] == pytest.approx(published[m])

@@ -102,7 +102,8 @@ def _study_published(published: dict[str, Any] | None, reps: int) -> list[str]:
         "",
         "Mean normalised score over the tasks each method ran (each task's mean over seeds; from the final snapshot), "
         "beside the same mean of the published returns: the CIC paper's Table 6 (URLB's code, 2M pre-training "
-        "steps, full size, 10 seeds) and, for MOSS, its README.",
+        "steps, full size, 10 seeds) and, for MOSS, its README. A variant or skill choice of a method "
+        "(`cic_code+fixed`) is set beside that method's published numbers and left out of the rank correlation.",
         "",
         "| method | tasks | this study | published | source |",
         "|---|---:|---:|---:|---|",

@@ -230,37 +230,43 @@ def aggregate_scores(
 
 
 def _published_rows(scores: dict[str, dict[str, list[float]]]) -> list[dict[str, Any]]:
-    """Per label with published returns on all its tasks: its mean normalised score beside the published one."""
+    """Per label whose published method (:func:`published_method`) has published returns on all its tasks: its mean
+    normalised score beside the published one, and ``ranked``: whether it is that method's own label (one row per
+    published method enters a rank correlation; a variant or skill choice of it is set beside it, not ranked)."""
     from sb3_cic.constants import EXPERT_SCORES, MOSS_PUBLISHED_RETURNS, PUBLISHED_RETURNS
 
     rows = []
     for label, tasks in sorted(scores.items()):
+        method = published_method(label)
         table, source = (
-            (PUBLISHED_RETURNS.get(label), "Table 6") if label in PUBLISHED_RETURNS else (MOSS_PUBLISHED_RETURNS.get(label), "MOSS")
+            (PUBLISHED_RETURNS.get(method), "Table 6") if method in PUBLISHED_RETURNS else (MOSS_PUBLISHED_RETURNS.get(method), "MOSS")
         )
         names = sorted(tasks)
         if table is None or not all(task in table for task in names):
             continue
         published = float(np.mean([table[task][0] / EXPERT_SCORES[task] for task in names]))
         ours = float(np.mean([np.mean(tasks[task]) for task in names]))
-        rows.append({"method": label, "tasks": names, "ours": ours, "published": published, "source": source})
+        rows.append({"method": label, "tasks": names, "ours": ours, "published": published, "source": source,
+                     "ranked": label == method})
     return rows
 
 
 def published_comparison(results: list[dict[str, Any]], reps: int = 2000, seed: int = 0) -> dict[str, Any] | None:
     """This study's methods against the CIC paper's Table 6 (:data:`~sb3_cic.constants.PUBLISHED_RETURNS`).
 
-    Per method (a label fine-tuned from its final snapshot, ``ddpg`` from scratch) that Table 6 lists: the mean
+    Per label fine-tuned from its final snapshot (``ddpg`` from scratch) whose method Table 6 lists: the mean
     normalised score over the tasks it ran (each task's mean over seeds), beside Table 6's on the same tasks
-    (published mean return / expert score); MOSS beside its README's (:data:`~sb3_cic.constants.MOSS_PUBLISHED_RETURNS`).
-    Over the Table 6 methods that ran the same tasks, Spearman's rank correlation of the two, with a 95% percentile
-    interval from ``reps`` bootstrap resamples of each (method, task)'s seeds. None without a listed method.
+    (published mean return / expert score); a variant or skill choice beside its method's (``cic_code+fixed``
+    beside CIC's); MOSS beside its README's (:data:`~sb3_cic.constants.MOSS_PUBLISHED_RETURNS`). Over the Table 6
+    methods (each one's own label only) that ran the same tasks, Spearman's rank correlation of the two, with a 95%
+    percentile interval from ``reps`` bootstrap resamples of each (method, task)'s seeds. None without a listed
+    method.
 
     :param results: fine-tuning results (:func:`load_results`)
     :param reps: bootstrap replications
     :param seed: seed of the bootstrap
-    :return: ``{"tasks", "methods": [{"method", "tasks", "ours", "published", "source"}], "spearman", "low", "high",
-        "ranked"}``
+    :return: ``{"tasks", "methods": [{"method", "tasks", "ours", "published", "source", "ranked"}], "spearman",
+        "low", "high", "ranked"}`` (``method``: the label)
     """
     from scipy.stats import spearmanr
 
@@ -273,9 +279,10 @@ def published_comparison(results: list[dict[str, Any]], reps: int = 2000, seed: 
         return None
     # the rank correlation over the Table 6 methods of the most common task set (a tie: the most tasks, then the
     # first in sorted order, whatever the order of a set)
-    sets = [tuple(r["tasks"]) for r in rows if r["source"] == "Table 6"]
+    candidates = [r for r in rows if r["source"] == "Table 6" and r["ranked"]]
+    sets = [tuple(r["tasks"]) for r in candidates]
     common = max(sorted(set(sets)), key=lambda t: (sets.count(t), len(t))) if sets else ()
-    ranked = [r for r in rows if r["source"] == "Table 6" and tuple(r["tasks"]) == common]
+    ranked = [r for r in candidates if tuple(r["tasks"]) == common]
     out: dict[str, Any] = {"tasks": list(common), "methods": rows, "ranked": [r["method"] for r in ranked]}
     out["spearman"] = out["low"] = out["high"] = None
     if len(ranked) >= 3:
