@@ -7,6 +7,7 @@ pairing existed; nothing is trained); the others train tiny runs (hidden 32, bat
 
 from __future__ import annotations
 
+import fcntl
 import json
 import os
 import shutil
@@ -26,6 +27,7 @@ from sb3_cic.study.settings import Settings
 from sb3_cic.study.settings_record import conf_file_record
 from sb3_cic.study.engine import execute
 from sb3_cic.study.graph import Run, alive, build_graph, status_report
+from sb3_cic.study import record
 from sb3_cic.study.record import Pairing, StudyLock, changed_entries
 from waiting import wait_for
 
@@ -195,9 +197,12 @@ def test_a_damaged_study_json_is_named(quadruped: Path, capsys: pytest.CaptureFi
 
 # 3. one driver per study folder --------------------------------------------------------------------------------
 def test_a_second_driver_is_refused_and_a_killed_one_leaves_no_lock(quadruped: Path, capsys: pytest.CaptureFixture):
+    assert "\nno command drives it now\n" in status_report(quadruped)[0] and not (quadruped / "study.lock").exists()
     with StudyLock(quadruped):
         line = _refused(_quadruped_resume(quadruped), capsys)
         assert f"another command drives {quadruped} (pid {os.getpid()}" in line
+        assert f"\ndriven now by pid {os.getpid()} on " in status_report(quadruped)[0]
+    assert StudyLock.holder(quadruped) is None
     holder = subprocess.Popen(
         [sys.executable, "-c", "import sys, time; from sb3_cic.study.record import StudyLock\n"
          f"with StudyLock({str(quadruped)!r}):\n    print('locked', flush=True); time.sleep(600)"],
@@ -210,6 +215,19 @@ def test_a_second_driver_is_refused_and_a_killed_one_leaves_no_lock(quadruped: P
         holder.wait()
     code, out, _ = _exit(_quadruped_resume(quadruped), capsys)
     assert code == 0 and "0 runs ran now" in out
+
+
+def test_a_driver_starting_while_status_probes_the_lock_is_not_refused(quadruped: Path, monkeypatch: pytest.MonkeyPatch):
+    """`sb3-cic status` holds the lock for an instant to see whether a driver holds it; a driver that starts in that
+    instant waits and tries again instead of being refused."""
+    (quadruped / "study.lock").touch()
+    probe = open(quadruped / "study.lock")
+    fcntl.flock(probe, fcntl.LOCK_SH | fcntl.LOCK_NB)  # what StudyLock.holder takes for its probe
+    waits = []
+    monkeypatch.setattr(record.time, "sleep", lambda seconds: waits.append(seconds) or probe.close())  # the probe ends
+    with StudyLock(quadruped):
+        assert StudyLock.holder(quadruped).startswith(f"pid {os.getpid()} on ")
+    assert len(waits) == 1
 
 
 # 4. a run folder that cannot be written -------------------------------------------------------------------------

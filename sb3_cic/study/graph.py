@@ -15,7 +15,7 @@ from sb3_cic import zoo
 from sb3_cic.constants import EXPERT_SCORES
 from sb3_cic.study.run_result import read_run_result
 from sb3_cic.study.checkpoint import RunFolder, process_start_time, write_json
-from sb3_cic.study.record import Pairing, study_record
+from sb3_cic.study.record import Pairing, StudyLock, study_record
 from sb3_cic.study.run import Run
 from sb3_cic.study.layout import (
     check_snapshot,
@@ -298,7 +298,9 @@ def status_report(study: str | Path) -> tuple[str, bool]:
         return f"{study}: no runs recorded yet (its study.json lists none): start them with sb3-cic study or protocol", False
     counted = f"{len(runs)} run{'' if len(runs) == 1 else 's'}"
     lines = [f"{study}: {counted}, " + ", ".join(f"{total[s]} {s}" for s in STATES)]
-    lines += [f"pre-training: {pairing.describe() if pairing else 'none yet (runs from scratch only)'}", ""]
+    lines.append(f"pre-training: {pairing.describe() if pairing else 'none yet (runs from scratch only)'}")
+    holder = StudyLock.holder(study)
+    lines += [f"driven now by {holder}" if holder else "no command drives it now", ""]
     lines.append(f"| method | domain | {' | '.join(STATES)} |")
     lines.append("|---|---|" + "---:|" * len(STATES))
     for (method, domain), counter in sorted(counts.items()):

@@ -309,12 +309,35 @@ class StudyLock:
         self._file: IO[str] | None = None
         self._created = False
 
+    @staticmethod
+    def holder(study: str | Path) -> str | None:
+        """Who drives ``study`` now (what its lock file says: host, pid, start), or None when no command holds its
+        lock. Only probes: creates nothing, and a lock it takes for the probe is released at once.
+
+        :param study: study folder
+        """
+        try:
+            file = open(lock_file(study))
+        except OSError:  # no lock file (never driven) or unreadable: nothing to say
+            return None
+        with file:
+            try:
+                fcntl.flock(file, fcntl.LOCK_SH | fcntl.LOCK_NB)
+            except OSError:
+                return file.read().strip() or "another process"
+            fcntl.flock(file, fcntl.LOCK_UN)
+        return None
+
     def __enter__(self) -> StudyLock:
         self._created = not self.path.parent.exists()
         self.path.parent.mkdir(parents=True, exist_ok=True)
         file = open(self.path, "a+")
         try:
-            fcntl.flock(file, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            try:
+                fcntl.flock(file, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError:  # once more: `sb3-cic status` probes the lock for an instant (:meth:`holder`)
+                time.sleep(0.2)
+                fcntl.flock(file, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:
             file.seek(0)
             holder = file.read().strip() or "another process"
