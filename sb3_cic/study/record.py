@@ -294,6 +294,12 @@ def study_record(study: str | Path) -> dict[str, Any] | None:
 
 
 # the lock ------------------------------------------------------------------------------------------------
+def _holder_said(file: IO[str]) -> str:
+    """Who holds the lock, as its open lock ``file`` says (written by :class:`StudyLock`)."""
+    file.seek(0)
+    return file.read().strip() or "another process"
+
+
 class StudyLock:
     """One driver per study folder: an exclusive ``flock`` on ``<study>/study.lock``, held while the command runs.
 
@@ -324,7 +330,7 @@ class StudyLock:
             try:
                 fcntl.flock(file, fcntl.LOCK_SH | fcntl.LOCK_NB)
             except OSError:
-                return file.read().strip() or "another process"
+                return _holder_said(file)
             fcntl.flock(file, fcntl.LOCK_UN)
         return None
 
@@ -339,8 +345,7 @@ class StudyLock:
                 time.sleep(0.2)
                 fcntl.flock(file, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:
-            file.seek(0)
-            holder = file.read().strip() or "another process"
+            holder = _holder_said(file)
             file.close()
             raise ValueError(f"another command drives {self.path.parent} ({holder}); wait for it to end or stop it "
                              "(a stopped command leaves no lock behind), then run this one again") from None
