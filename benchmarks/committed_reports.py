@@ -52,7 +52,11 @@ class CommittedReport:
     name: str = ""
 
     def write(self, scratch: Path) -> Path:
-        """Write the report again under ``scratch``; return the folder that holds it."""
+        """Write the report again under ``scratch`` (the command's printed tables left out); return its folder."""
+        with contextlib.redirect_stdout(io.StringIO()):
+            return self._write(scratch)
+
+    def _write(self, scratch: Path) -> Path:
         if self.studies:  # from the repository, as the page's command (the report names the folders as given)
             out, here = scratch / "out", os.getcwd()
             os.chdir(ROOT)
@@ -89,8 +93,7 @@ def differing(report: CommittedReport, scratch: Path) -> list[str]:
     :param report: the committed report
     :param scratch: an empty folder to write in
     """
-    with contextlib.redirect_stdout(io.StringIO()):  # the report's tables: only the comparison is printed
-        made = report.write(scratch)
+    made = report.write(scratch)
     return [name for name in COMPARED if (made / name).read_bytes() != (ROOT / report.where / name).read_bytes()]
 
 
@@ -102,8 +105,7 @@ def main(argv: list[str] | None = None) -> None:
     for report in REPORTS:
         with tempfile.TemporaryDirectory() as scratch:
             if args.write:
-                with contextlib.redirect_stdout(io.StringIO()):
-                    made = report.write(Path(scratch))
+                made = report.write(Path(scratch))
                 for file in [*COMPARED, *(path.name for path in made.glob("*.png"))]:
                     shutil.copy2(made / file, ROOT / report.where / file)
                 rows.append((report.where, "written"))

@@ -2,27 +2,17 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
-from pathlib import Path
-from types import ModuleType
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def load(name: str) -> ModuleType:
-    spec = importlib.util.spec_from_file_location(name, ROOT / "benchmarks" / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+from benchmark_module import load_benchmark
 
 
 def test_gridworld_skills_writes_runs_and_figure(tmp_path, capsys):
     argv = ["--steps", "300", "--learning-starts", "100", "--batch-size", "32", "--hidden-dim", "16", "--cic-skills", "40",
             "--seeds", "0", "--out", str(tmp_path)]
-    load("gridworld_skills").main(argv)
+    load_benchmark("gridworld_skills").main(argv)
     results = json.loads((tmp_path / "results.json").read_text())
     assert [run["method"] for run in results["runs"]] == ["diayn4", "diayn100", "cic"]
     for run in results["runs"]:
@@ -35,7 +25,7 @@ def test_gridworld_skills_writes_runs_and_figure(tmp_path, capsys):
 
     # a second call with the same settings keeps the finished runs (a killed call resumes); a run whose file is gone reruns
     (tmp_path / "diayn100_seed0.json").unlink()
-    load("gridworld_skills").main(argv)
+    load_benchmark("gridworld_skills").main(argv)
     printed = capsys.readouterr().out
     assert "diayn4 seed 0: kept from" in printed and "cic seed 0: kept from" in printed
     assert "diayn100 seed 0: kept" not in printed and (tmp_path / "diayn100_seed0.json").exists()
@@ -44,7 +34,7 @@ def test_gridworld_skills_writes_runs_and_figure(tmp_path, capsys):
 
 @pytest.mark.filterwarnings("ignore:.*reward is ignored")
 def test_early_termination_records_extrinsic_returns(tmp_path, capsys):
-    module = load("early_termination")
+    module = load_benchmark("early_termination")
     module.main(["--steps", "300", "--seeds", "0", "--methods", "diayn", "fixed", "--eval-freq", "150",
                  "--eval-episodes", "2", "--hidden-dim", "16", "--batch-size", "32", "--out", str(tmp_path),
                  "--project-steps", "100000"])

@@ -5,18 +5,15 @@ written again (``python benchmarks/committed_reports.py --write``) and its page 
 from __future__ import annotations
 
 import dataclasses
-import importlib.util
 import json
 import shutil
-import sys
-from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
-spec = importlib.util.spec_from_file_location("committed_reports", ROOT / "benchmarks" / "committed_reports.py")
-committed_reports = sys.modules["committed_reports"] = importlib.util.module_from_spec(spec)  # (for its dataclass)
-spec.loader.exec_module(committed_reports)
+from benchmark_module import load_benchmark
+
+committed_reports = load_benchmark("committed_reports")
+ROOT = committed_reports.ROOT
 
 
 @pytest.mark.parametrize("report", committed_reports.REPORTS, ids=lambda report: report.where)
