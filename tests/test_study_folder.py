@@ -26,7 +26,7 @@ from sb3_cic.study.driver import run_protocol
 from sb3_cic.study.settings import Settings
 from sb3_cic.study.settings_record import conf_file_record
 from sb3_cic.study.engine import execute
-from sb3_cic.study.graph import Run, alive, build_graph, status_report
+from sb3_cic.study.graph import Run, alive, build_graph, status_report, time_left
 from sb3_cic.study import record
 from sb3_cic.study.record import Pairing, StudyLock, changed_entries
 from waiting import wait_for
@@ -193,6 +193,38 @@ def test_a_damaged_study_json_is_named(quadruped: Path, capsys: pytest.CaptureFi
     for command in (["status", str(quadruped)], _quadruped_resume(quadruped)):
         line = _refused(command, capsys)
         assert f"{quadruped / 'study.json'} is damaged" in line and "restore it" in line
+
+
+def test_status_says_the_time_the_unfinished_runs_need(quadruped: Path):
+    """A run made pending again is expected to take the mean wall time of the done runs of its kind, method and
+    domain; the line is in hours of one worker."""
+    folder = quadruped / "finetune" / "cic" / "quadruped_walk" / "seed_2"
+    (folder / "result.json").unlink()
+    walls = [json.loads(f.read_text())["wall_time_s"]["finetune"]
+             for f in (quadruped / "finetune" / "cic").glob("*/seed_*/result.json")]
+    assert len(walls) == 11
+    text, finished = status_report(quadruped)
+    assert not finished and "cic quadruped_walk seed 2: pending, last checkpoint at step 0" in text
+    assert f"Time left: about {sum(walls) / 11 / 3600:.1f} run-hours for 1 of the 1 unfinished runs" in text
+
+
+def test_time_left_goes_by_the_method_then_the_domain_and_less_the_checkpoint():
+    def done(method: str, domain: str, task: str | None, wall: float) -> tuple[Run, dict]:
+        kind = "pretrain" if task is None else "finetune"
+        steps = {"steps": 1000} if task is None else {"finetune_steps": 1000}
+        return Run(method, domain, task, 0), {**steps, "wall_time_s": {kind: wall}}
+
+    results = dict([done("cic", "walker", None, 3600.0), done("icm", "walker", None, 1800.0),
+                    done("cic", "walker", "walker_run", 600.0), done("cic", "walker", "walker_flip", 800.0)])
+    assert time_left([], results) is None
+    left = [(Run("cic", "walker", None, 1), 0),  # its method's pre-training: 3600 s
+            (Run("apt", "walker", None, 1), "unusable (truncated)"),  # walker's pre-trainings: 2700 s
+            (Run("cic", "walker", "walker_stand", 1), 500),  # half of 700 s
+            (Run("cic", "jaco", None, 1), 0)]  # nothing done on jaco
+    line = time_left(left, results)
+    assert line.startswith(f"Time left: about {(3600 + 2700 + 350) / 3600:.1f} run-hours for 3 of the 4 unfinished runs")
+    assert "and 1 with no done run of their kind and domain" in line
+    assert time_left(left[-1:], results).startswith("Time left: not known yet")
 
 
 # 3. one driver per study folder --------------------------------------------------------------------------------

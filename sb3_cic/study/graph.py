@@ -269,6 +269,45 @@ def run_state(folder: RunFolder, kind: str = "finetune", check: Any = None) -> t
     return "pending", info
 
 
+def time_left(unfinished: Sequence[tuple[Run, Any]], done: dict[Run, dict[str, Any]]) -> str | None:
+    """The line of ``sb3-cic status`` on the time its unfinished runs still need, None without unfinished runs.
+
+    Each unfinished run is expected to take the mean wall time of the study's done runs of its kind, method and
+    domain (where there are none: of its kind and domain), times the share of its steps after its last checkpoint;
+    a run with no done run to go by is counted apart. The sum is in hours of one run on one worker: divide by the
+    workers that run them.
+
+    :param unfinished: each unfinished run and its last checkpoint's step (not an int: none usable, step 0)
+    :param done: the ``result.json`` of each done run
+    """
+    if not unfinished:
+        return None
+    times: dict[tuple[str, ...], list[tuple[float, int]]] = {}
+    for run, result in done.items():
+        steps = result.get("steps" if run.kind == "pretrain" else "finetune_steps")
+        wall = result.get("wall_time_s", {}).get(run.kind)
+        if isinstance(steps, int) and steps > 0 and isinstance(wall, (int, float)):
+            for key in ((run.kind, run.method, run.domain), (run.kind, run.domain)):
+                times.setdefault(key, []).append((float(wall), steps))
+    seconds, unknown = 0.0, 0
+    for run, step in unfinished:
+        known = times.get((run.kind, run.method, run.domain)) or times.get((run.kind, run.domain))
+        if not known:
+            unknown += 1
+            continue
+        share = [max(0.0, 1 - (step if isinstance(step, int) else 0) / steps) for _, steps in known]
+        seconds += sum(wall * left for (wall, _), left in zip(known, share)) / len(known)
+    counted = len(unfinished) - unknown
+    if not counted:
+        return "Time left: not known yet (no done run of the unfinished runs' kind and domain to go by)"
+    line = (f"Time left: about {seconds / 3600:.1f} run-hours for {counted} of the {len(unfinished)} unfinished runs "
+            "(one run on one worker: divide by the workers)")
+    if unknown:
+        line += f", and {unknown} with no done run of their kind and domain to go by"
+    return (line + "\n  each run: the mean wall time of the done runs of its kind, method and domain (else of its kind "
+            "and domain), less its last checkpoint's share")
+
+
 def status_report(study: str | Path) -> tuple[str, bool]:
     """The text of ``sb3-cic status`` and whether every run of the study is done.
 
@@ -280,13 +319,20 @@ def status_report(study: str | Path) -> tuple[str, bool]:
     record = study_record(study)
     counts: dict[tuple[str, str], Counter] = {}
     unfinished, failed, damaged = [], [], []
+    done: dict[Run, dict[str, Any]] = {}
+    left: list[tuple[Run, Any]] = []
+
+    def check(run: Run) -> None:
+        done[run] = read_done_run(study, run, record)
+
     for run in runs:
         folder = RunFolder(run.folder(study), identity={"run": run.row()})
-        state, info = run_state(folder, run.kind, lambda run=run: read_done_run(study, run, record))
+        state, info = run_state(folder, run.kind, lambda run=run: check(run))
         counts.setdefault((run.method, run.domain), Counter())[state] += 1
         if state not in ("done", "damaged"):
             where = f" on {info['host']} (pid {info['pid']})" if state == "running" else ""
             unfinished.append(f"  {run}: {state}{where}, last checkpoint at step {info['checkpoint_step']}")
+            left.append((run, info["checkpoint_step"]))
         if state == "failed":
             failed.append(f"  {run}: {info['error']}\n    traceback: {info['traceback']}")
         if state == "damaged":
@@ -306,7 +352,7 @@ def status_report(study: str | Path) -> tuple[str, bool]:
     for (method, domain), counter in sorted(counts.items()):
         lines.append(f"| {method} | {domain} | " + " | ".join(str(counter[s]) for s in STATES) + " |")
     if unfinished:
-        lines += ["", "Unfinished runs:", *unfinished]
+        lines += ["", "Unfinished runs:", *unfinished, "", time_left(left, done)]
     if failed:
         lines += ["", "Failed runs:", *failed]
     if damaged:
