@@ -300,7 +300,8 @@ def protocol_main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
 def status_main(argv: Sequence[str] | None = None) -> int:
     """``sb3-cic status STUDY``; returns the exit code: 0 when every run of the study is done (a ``ValueError`` if
     the folder is no study)."""
-    parser = argument_parser("sb3-cic status", "Runs done / running / failed / pending of a study, and the time the unfinished ones need.")
+    parser = argument_parser("sb3-cic status",
+                             "Runs done / running / failed / pending of a study, and the time the unfinished ones need.")
     parser.add_argument("study", help="study folder")
     args = parser.parse_args(argv)
     from sb3_cic.study.graph import status_report

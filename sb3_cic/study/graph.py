@@ -3,6 +3,7 @@ the study folder before anything runs, and the status of each run read back from
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import socket
@@ -285,7 +286,8 @@ def time_left(unfinished: Sequence[tuple[Run, Any]], done: dict[Run, dict[str, A
     times: dict[tuple[str, ...], list[tuple[float, int]]] = {}
     for run, result in done.items():
         steps = result.get("steps" if run.kind == "pretrain" else "finetune_steps")
-        wall = result.get("wall_time_s", {}).get(run.kind)
+        walls = result.get("wall_time_s")
+        wall = walls.get(run.kind) if isinstance(walls, dict) else None
         if isinstance(steps, int) and steps > 0 and isinstance(wall, (int, float)):
             for key in ((run.kind, run.method, run.domain), (run.kind, run.domain)):
                 times.setdefault(key, []).append((float(wall), steps))
@@ -327,7 +329,7 @@ def status_report(study: str | Path) -> tuple[str, bool]:
 
     for run in runs:
         folder = RunFolder(run.folder(study), identity={"run": run.row()})
-        state, info = run_state(folder, run.kind, lambda run=run: check(run))
+        state, info = run_state(folder, run.kind, functools.partial(check, run))
         counts.setdefault((run.method, run.domain), Counter())[state] += 1
         if state not in ("done", "damaged"):
             where = f" on {info['host']} (pid {info['pid']})" if state == "running" else ""
