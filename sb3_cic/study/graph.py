@@ -297,8 +297,8 @@ def time_left(unfinished: Sequence[tuple[Run, Any]], done: dict[Run, dict[str, A
         if not known:
             unknown += 1
             continue
-        share = [max(0.0, 1 - (step if isinstance(step, int) else 0) / steps) for _, steps in known]
-        seconds += sum(wall * left for (wall, _), left in zip(known, share)) / len(known)
+        step = step if isinstance(step, int) else 0
+        seconds += sum(wall * max(0.0, 1 - step / steps) for wall, steps in known) / len(known)
     counted = len(unfinished) - unknown
     if not counted:
         return "Time left: not known yet (no done run of the unfinished runs' kind and domain to go by)"
