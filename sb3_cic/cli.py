@@ -5,7 +5,8 @@
   algorithm loads with ``load_pretrained`` (see :class:`sb3_cic.zoo.PretrainedLoader`);
 * ``enjoy``, ``record-video``: rl_zoo3's scripts with our algorithms registered;
 * ``protocol``: the URLB protocol for one method and domain, in this process (:mod:`sb3_cic.study.driver`);
-* ``study``, ``status``: the whole study on Ray and its state (:mod:`sb3_cic.study`);
+* ``study``, ``status``, ``pause``: the whole study on Ray, its state, and a stop that keeps every run's work
+  (:mod:`sb3_cic.study`);
 * ``report``: the score report of a study (:mod:`sb3_cic.report`);
 * ``benchmark-report``: URLB's 12 tasks over several studies beside the CIC paper's Tables 5 and 6
   (:mod:`sb3_cic.report.benchmark`);
@@ -52,8 +53,8 @@ from sb3_cic.command_line import argument_parser, check_device_available, device
 from sb3_cic.common.arguments import POSITIVE_INT, SEED, STEPS, Range
 from sb3_cic.study.cli import small_help
 
-USAGE = """usage: sb3-cic {demo,train,finetune,enjoy,record-video,protocol,study,status,report,benchmark-report,skills}
-              [options]
+USAGE = """usage: sb3-cic {demo,train,finetune,enjoy,record-video,protocol,study,status,pause,report,benchmark-report,
+               skills} [options]
 
   demo          the main job: a shipped CIC snapshot fine-tuned on a task beside DDPG from scratch (make demo)
   train         rl-zoo training (pre-training on URLB/<domain>-v0, or ddpg on a task id)
@@ -63,6 +64,7 @@ USAGE = """usage: sb3-cic {demo,train,finetune,enjoy,record-video,protocol,study
   protocol      the URLB protocol: pre-train once, fine-tune on tasks x seeds, evaluate
   study         the whole study (methods x domains x tasks x seeds) as Ray tasks, resumable
   status        runs done / running / failed / pending of a study
+  pause         the command that drives a study checkpoints its runs at their episode's end and stops
   report        per-task and rliable aggregate scores of a study
   benchmark-report  the 12 tasks over several studies, beside the CIC paper's Tables 5 and 6
   skills        a snapshot's policy under n skills: one grid video and a plot (needs MUJOCO_GL=egl)
@@ -577,10 +579,10 @@ def _run(command: str, argv: list[str]) -> int:
 
         with interruptible():  # SIGTERM too: :func:`main` says how to resume
             protocol_main(argv)
-    elif command in ("study", "status"):
+    elif command in ("study", "status", "pause"):
         from sb3_cic.study import cli as study_cli
 
-        return (study_cli.main if command == "study" else study_cli.status_main)(argv)
+        return {"study": study_cli.main, "status": study_cli.status_main, "pause": study_cli.pause_main}[command](argv)
     elif command == "report":
         from sb3_cic.report.commands import report_main
 

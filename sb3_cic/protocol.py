@@ -22,7 +22,7 @@ import math
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import gymnasium as gym
 import numpy as np
@@ -34,12 +34,12 @@ from sb3_cic import zoo
 from sb3_cic.callbacks import SkillGridSweepCallback, SkillSelectionCallback, URLBEvalCallback
 from sb3_cic.common.fast_update import enable_tf32
 from sb3_cic.common.progress import close_progress, progress_callback
-from sb3_cic.common.resumable import RunCheckpointCallback
+from sb3_cic.common.resumable import RunCheckpointCallback, RunPaused
 from sb3_cic.constants import EXPERT_SCORES
 from sb3_cic.finetune import finetune_callbacks
 from sb3_cic.study.checkpoint import RunFolder
 from sb3_cic.study.layout import pretrain_dir, snapshot_file, task_env_id, task_name
-from sb3_cic.study.record import Pairing, check_resume_settings, check_run_settings, write_run_settings
+from sb3_cic.study.record import Pairing, check_resume_settings, check_run_settings, pause_requested, write_run_settings
 from sb3_cic.study.run import Run
 from sb3_cic.study.run_result import FinetuneResult
 from sb3_cic.study.settings import Settings
@@ -142,7 +142,8 @@ def pretrain(study: str | Path, run: Run, settings: Settings, config: str | Path
         model = cls(env=env_id, seed=run.seed, **model_kwargs(study, settings), **hyperparams)
     snapshots = SnapshotCallback(start.folder.path, snapshot_steps(settings, steps), settings.verbose)
     wall = train(model, start, steps, [snapshots], settings.pretrain_checkpoint_every, settings,
-                 f"pretrain_{run.method}_{run.domain}", f"pretrain {run.method} {run.domain} seed {run.seed}")
+                 f"pretrain_{run.method}_{run.domain}", f"pretrain {run.method} {run.domain} seed {run.seed}",
+                 pause_check(study))
     result = {
         "method": run.method,
         "domain": run.domain,
@@ -160,22 +161,31 @@ def pretrain(study: str | Path, run: Run, settings: Settings, config: str | Path
     return result
 
 
+def pause_check(study: str | Path) -> Callable[[], bool]:
+    """Whether the command driving ``study`` was asked to pause (:func:`~sb3_cic.study.record.request_pause`), asked
+    by a run once an episode."""
+    return lambda: pause_requested(study) is not None
+
+
 def train(
     model: Any, start: RunStart, steps: int, callbacks: list[Any], checkpoint_every: int, settings: Settings,
-    tb_log_name: str, label: str = "run",
+    tb_log_name: str, label: str = "run", pause: Callable[[], bool] | None = None,
 ) -> float:
     """Train ``model`` to ``steps`` with ``callbacks`` and checkpoints, resuming from ``start.checkpoint`` (one line
     says so); return the run's training seconds (before and after a resume). Progress (``settings.progress_bar``)
     is a bar on a terminal, a line a minute elsewhere (:func:`~sb3_cic.common.progress.progress_callback`).
 
     :param label: the run, for the resume and progress lines (``"pretrain cic walker seed 0"``)
+    :param pause: asked at each episode's end: when True, the run checkpoints there and raises
+        :class:`~sb3_cic.common.resumable.RunPaused` (:meth:`~sb3_cic.study.checkpoint.RunFolder.pause` recorded)
     """
     folder, checkpoint = start.folder, start.checkpoint
     folder.start(start.step)
     if checkpoint:
         print(f"{label}: resumed from its checkpoint at step {checkpoint['step']:,} of {steps:,}", flush=True)
         folder.restore(model, callbacks)  # last: the random states as the checkpoint saved them
-    checkpointer = RunCheckpointCallback(folder, checkpoint_every, callbacks, checkpoint["elapsed_s"] if checkpoint else 0.0)
+    checkpointer = RunCheckpointCallback(folder, checkpoint_every, callbacks, checkpoint["elapsed_s"] if checkpoint else 0.0,
+                                         pause)
     progress = progress_callback(label, steps, settings.progress_bar)
     try:
         model.learn(
@@ -184,6 +194,12 @@ def train(
             tb_log_name=tb_log_name,
             reset_num_timesteps=not checkpoint,
         )
+    except RunPaused as paused:
+        folder.pause()
+        model.logger.close()  # its TensorBoard events written out: the process may live on (a Ray worker)
+        kept = "its checkpoint" if paused.step else "nothing done to keep"
+        print(f"{label}: paused at step {paused.step:,} of {steps:,} ({kept})", flush=True)
+        raise
     finally:
         close_progress(progress)
     return checkpointer.elapsed()
@@ -258,8 +274,13 @@ def finetune(study: str | Path, run: Run, settings: Settings, config: str | Path
     expert = EXPERT_SCORES.get(name)
     evaluation = evaluation_callback(task_env_id(run.domain, run.task), name if expert else None, run.seed,
                                      settings.eval_episodes, settings.eval_freq)
-    wall = train(model, start, steps, [*callbacks, evaluation], settings.finetune_checkpoint_every, settings,
-                 f"finetune_{run.label}_{name}_seed{run.seed}", f"{run.label} {name} seed {run.seed}")
+    try:
+        wall = train(model, start, steps, [*callbacks, evaluation], settings.finetune_checkpoint_every, settings,
+                     f"finetune_{run.label}_{name}_seed{run.seed}", f"{run.label} {name} seed {run.seed}",
+                     pause_check(study))
+    except RunPaused:
+        evaluation.eval_env.close()
+        raise
     if not evaluation.history or evaluation.history[-1][0] != model.num_timesteps:
         begin = time.perf_counter()
         evaluation._evaluate()  # the final evaluation

@@ -16,7 +16,8 @@ from waiting import run_process
 
 ROOT = Path(__file__).resolve().parent.parent
 COMMANDS = [
-    "demo", "train", "finetune", "enjoy", "record-video", "protocol", "study", "status", "report", "benchmark-report", "skills"
+    "demo", "train", "finetune", "enjoy", "record-video", "protocol", "study", "status", "pause", "report", "benchmark-report",
+    "skills",
 ]
 #: what a help text must not load
 HEAVY = ("torch", "ray", "stable_baselines3", "rl_zoo3", "dm_control")

@@ -231,6 +231,51 @@ def test_ray_worker_killed_mid_study_is_retried(ray_instance, tmp_path: Path):
     assert _curves(study) == _curves(tmp_path / "uninterrupted")
 
 
+def test_pause_stops_the_runs_at_their_checkpoints_and_the_same_command_resumes(
+    ray_instance, tmp_path: Path, capsys: pytest.CaptureFixture
+):
+    """``sb3-cic pause`` from another thread once a run has checkpointed: the two running runs checkpoint at their
+    next episode end and stop, the third never starts, the command ends with exit code 75 and no pause request
+    left; the same command resumes each run from its checkpoint."""
+    study = tmp_path / "study"
+    seeds = [study / "finetune" / "ddpg" / "walker_stand" / f"seed_{seed}" for seed in range(3)]
+    command = ["study", str(study), "--methods", "ddpg", "--domains", "walker", "--tasks", "stand", "--seeds", "0", "1",
+               "2", "--finetune-steps", "5000", "--workers", "2", *FLAGS]
+    asked = []
+    study_ended = threading.Event()
+
+    def pause_after_first_checkpoint() -> None:  # until the study has ended: no clock
+        while not study_ended.is_set():
+            if (seeds[0] / "checkpoint.zip").exists():
+                asked.append(main(["pause", str(study)]))
+                return
+            time.sleep(0.05)
+
+    watcher = threading.Thread(target=pause_after_first_checkpoint)
+    watcher.start()
+    try:
+        with pytest.raises(SystemExit) as exit_info:
+            main(command)
+    finally:
+        study_ended.set()
+        watcher.join()
+    out, err = capsys.readouterr()
+    assert asked == [None] and exit_info.value.code == 75
+    assert "asked the command that drives" in out and "paused (sb3-cic pause)" in err
+    assert not (study / "pause.json").exists() and not any((seed / "result.json").exists() for seed in seeds)
+    steps = [RunFolder(seed).read_meta()["step"] for seed in seeds[:2]]
+    assert all(1000 <= step < 5000 and step % 1000 == 0 for step in steps), steps
+    assert not (seeds[2] / "progress.json").exists()  # the third run never started
+    text, _ = status_report(study)
+    assert "3 runs, 0 done, 0 running, 0 failed, 3 pending" in text
+    for seed, step in zip(range(2), steps):
+        assert f"ddpg walker_stand seed {seed}: pending, last checkpoint at step {step}" in text
+
+    main(command)  # exit code 0: no SystemExit
+    results = [json.loads((seed / "result.json").read_text()) for seed in seeds]
+    assert [r["resumed_from_step"] for r in results] == [*steps, 0] and all(r["n_evaluations"] == 6 for r in results)
+
+
 def test_failing_run_is_reported_and_the_others_finish(ray_instance, tmp_path: Path, capsys: pytest.CaptureFixture):
     study = tmp_path / "study"
     broken = study / "finetune" / "ddpg" / "walker_stand" / "seed_1"

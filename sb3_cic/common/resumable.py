@@ -1,7 +1,8 @@
 """What a run checkpoint saves of a training beyond SB3's ``save``, and the callback that takes it: the random states
 (:func:`rng_state`), the callbacks' state (:class:`ResumableCallback`, :func:`callback_state`), each env layer's and
 VecEnv wrapper's state (:func:`env_state`, :func:`vec_env_state`), and :class:`RunCheckpointCallback`, which
-checkpoints a run at an episode boundary. The checkpoint file and the run folder that holds it are the study's
+checkpoints a run at an episode boundary (and, asked to pause, checkpoints at the next one and raises
+:class:`RunPaused`). The checkpoint file and the run folder that holds it are the study's
 (:mod:`sb3_cic.study.checkpoint`)."""
 
 from __future__ import annotations
@@ -9,7 +10,7 @@ from __future__ import annotations
 import random
 import time
 from pathlib import Path
-from typing import Any, Protocol, Sequence
+from typing import Any, Callable, Protocol, Sequence
 
 import gymnasium as gym
 import numpy as np
@@ -17,6 +18,18 @@ import torch as th
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecEnvWrapper
+
+
+class RunPaused(Exception):
+    """A run stopped on a pause request (:class:`RunCheckpointCallback`), its progress saved: started again, it
+    resumes from its checkpoint. Not a failure.
+
+    :param step: the step of its last checkpoint (None: the run stopped before it started)
+    """
+
+    def __init__(self, step: int | None = None) -> None:
+        super().__init__(f"paused at step {step}" if step is not None else "paused before it started")
+        self.step = step
 
 
 class ResumableCallback(BaseCallback):
@@ -198,7 +211,10 @@ class CheckpointFolder(Protocol):
 
 
 class RunCheckpointCallback(BaseCallback):
-    """Checkpoint the run every ``every`` steps, at the first episode boundary after that many steps.
+    """Checkpoint the run every ``every`` steps, at the first episode boundary after that many steps, and when
+    ``pause_requested()`` says so at an episode boundary: then the run checkpoints there (unless it has not stepped
+    since its start or last checkpoint) and stops, raising :class:`RunPaused` out of ``learn``. A run without
+    checkpoints (``every`` 0) ignores the pause: it could not resume.
 
     The checkpoint is taken when a rollout starts (the previous rollout's updates done) right after an
     episode ended, so a resumed run goes on exactly as the uninterrupted one would. The callback sees the episode
@@ -210,11 +226,18 @@ class RunCheckpointCallback(BaseCallback):
     :param every: steps between checkpoints (0: none)
     :param callbacks: the run's other callbacks, whose state is saved
     :param elapsed_s: training time of the run before this ``learn`` call (a resumed run's)
+    :param pause_requested: asked once per episode, at its end: whether to checkpoint and stop (None: never)
     :param verbose: verbosity
     """
 
     def __init__(
-        self, folder: CheckpointFolder, every: int, callbacks: Sequence[BaseCallback], elapsed_s: float = 0.0, verbose: int = 0
+        self,
+        folder: CheckpointFolder,
+        every: int,
+        callbacks: Sequence[BaseCallback],
+        elapsed_s: float = 0.0,
+        pause_requested: Callable[[], bool] | None = None,
+        verbose: int = 0,
     ) -> None:
         super().__init__(verbose)
         if not isinstance(every, (int, np.integer)) or every < 0:
@@ -223,6 +246,7 @@ class RunCheckpointCallback(BaseCallback):
         self.every = int(every)
         self.callbacks = list(callbacks)
         self.elapsed_s = elapsed_s
+        self.pause_requested = pause_requested
         #: (step, seconds, bytes) of each checkpoint written
         self.written: list[tuple[int, float, int]] = []
 
@@ -244,10 +268,15 @@ class RunCheckpointCallback(BaseCallback):
         return self.elapsed_s + time.perf_counter() - self._start
 
     def _on_rollout_start(self) -> None:
-        if not self.every or self.num_timesteps - self._last < self.every:
+        if not self.every or not self._episode_start:
             return
-        if not self._episode_start:
-            return
+        pause = self.pause_requested is not None and self.pause_requested()
+        if self.num_timesteps - self._last >= self.every or (pause and self.num_timesteps > self._last):
+            self._checkpoint()
+        if pause:
+            raise RunPaused(self._last)
+
+    def _checkpoint(self) -> None:
         start = time.perf_counter()
         size = self.folder.save_checkpoint(self.model, self.callbacks, {"elapsed_s": self.elapsed()})
         self.written.append((self.num_timesteps, time.perf_counter() - start, size))

@@ -8,7 +8,7 @@ A run folder holds, besides what the run produces (``result.json``, ``eval.csv``
   what it left when the run is next seen);
 * ``progress.json`` while the run is unfinished: who runs it (host, pid and the process's start time, so that a pid
   the system gave to another process since is not taken for it: :func:`process_start_time`) and its last
-  checkpoint step;
+  checkpoint step; a run paused (``sb3-cic pause``) names no process there (:meth:`RunFolder.pause`);
 * ``error.txt`` when the run raised: the traceback.
 
 The checkpoint is a zip (stored, not compressed) of ``meta.json`` (step, elapsed time, and the run it belongs to:
@@ -153,6 +153,14 @@ class RunFolder:
             {"host": socket.gethostname(), "pid": os.getpid(), "start_time": process_start_time(os.getpid()),
              "checkpoint_step": checkpoint_step, "updated": time.time()},
         )
+
+    def pause(self) -> None:
+        """Record that the run stopped on a pause (:class:`~sb3_cic.common.resumable.RunPaused`): ``progress.json``
+        keeps its last checkpoint's step and names no process (the process, a Ray worker, may live on), so the run
+        is pending."""
+        progress = self.read_progress() or {}
+        write_json(self.progress, {"host": socket.gethostname(), "pid": None, "checkpoint_step":
+                                   progress.get("checkpoint_step", 0), "paused": time.time()})
 
     def finish(self, result: dict[str, Any]) -> None:
         """Write ``result.json``, then delete the checkpoint and ``progress.json`` (:meth:`clean`).

@@ -1,4 +1,4 @@
-"""``sb3-cic protocol``, ``sb3-cic study`` and ``sb3-cic status``: the command lines of the study driver
+"""``sb3-cic protocol``, ``sb3-cic study``, ``sb3-cic status`` and ``sb3-cic pause``: the command lines of the study driver
 (:mod:`sb3_cic.study.driver`). Both run commands take the same settings (:func:`add_settings_arguments`), pairing
 (:func:`add_pairing_arguments`) and ``--conf-file``.
 
@@ -49,6 +49,10 @@ OPTION_RANGES: dict[str, Range] = {
 
 #: the exit codes of a command ended by a signal (the shell's: 128 + the signal's number)
 INTERRUPTED_CODES: dict[int, int] = {signal.SIGINT: 130, signal.SIGTERM: 143}
+#: the exit code of ``study`` and ``protocol`` ended by ``sb3-cic pause`` (sysexits' EX_TEMPFAIL: run it again)
+PAUSED_CODE = 75
+#: what a paused command says after its name
+PAUSED_ADVICE = "paused (sb3-cic pause): its runs stopped at their checkpoints; run the same command to resume"
 
 
 def small_help() -> str:
@@ -237,7 +241,8 @@ def interruptible() -> Iterator[list[int]]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``sb3-cic study``; returns the exit code: 0 when every run of the command is done.
+    """``sb3-cic study``; returns the exit code: 0 when every run of the command is done, :data:`PAUSED_CODE` when
+    it was paused (``sb3-cic pause``: its runs stopped at their checkpoints), 1 otherwise.
 
     Bad input is a ``ValueError`` before anything is written or run (:func:`~sb3_cic.study.engine.run_study`);
     :func:`sb3_cic.cli.main` reports it in one line. SIGINT or SIGTERM stop the runs (no process of the command
@@ -272,6 +277,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     report, finished = status_report(args.study)
     print(report)
     print(f"{len(statuses)} runs ran now; report: sb3-cic report {args.study}")
+    if any(status["state"] == "paused" for status in statuses):
+        print(f"sb3-cic study: {PAUSED_ADVICE}", file=sys.stderr)
+        return PAUSED_CODE
     return 0 if finished else 1
 
 
@@ -286,13 +294,18 @@ def protocol_main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
     (:func:`~sb3_cic.study.driver.run_protocol`); returns the fine-tunings' results."""
     args = protocol_parser().parse_args(argv)
     settings = settings_from_args(args)
+    from sb3_cic.common.resumable import RunPaused
     from sb3_cic.study import driver
 
-    results = driver.run_protocol(
-        args.study, args.method, args.domain, tasks=args.tasks, seeds=args.seeds, settings=settings,
-        snapshot=args.snapshot, from_scratch=args.from_scratch, pretrain_seed=args.pretrain_seed,
-        config=args.conf_file, pairing=args.pairing,
-    )
+    try:
+        results = driver.run_protocol(
+            args.study, args.method, args.domain, tasks=args.tasks, seeds=args.seeds, settings=settings,
+            snapshot=args.snapshot, from_scratch=args.from_scratch, pretrain_seed=args.pretrain_seed,
+            config=args.conf_file, pairing=args.pairing,
+        )
+    except RunPaused:
+        print(f"sb3-cic protocol: {PAUSED_ADVICE}", file=sys.stderr)
+        raise SystemExit(PAUSED_CODE) from None
     print(f"{len(results)} fine-tuning runs in {Path(args.study) / 'finetune'}; report: sb3-cic report {args.study}")
     return results
 
@@ -312,3 +325,24 @@ def status_main(argv: Sequence[str] | None = None) -> int:
     except BrokenPipeError:  # ``sb3-cic status X | head``: the reader had enough; no traceback at exit either
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
     return 0 if finished else 1
+
+
+def pause_main(argv: Sequence[str] | None = None) -> int:
+    """``sb3-cic pause STUDY``: ask the command that drives the study to pause
+    (:func:`~sb3_cic.study.record.request_pause`); returns 0 (a ``ValueError`` when no command drives it)."""
+    parser = argument_parser(
+        "sb3-cic pause",
+        "Ask the command that drives a study (sb3-cic study or protocol) to pause: each running run checkpoints at "
+        "its next episode end and stops, no other run starts, and the command ends with exit code "
+        f"{PAUSED_CODE}; the same command resumes every run from there. For a machine about to be taken away (a "
+        "cluster job's time limit, a shutdown): a signal keeps only each run's last periodic checkpoint.",
+    )
+    parser.add_argument("study", help="study folder")
+    args = parser.parse_args(argv)
+    from sb3_cic.study.record import request_pause
+
+    holder = request_pause(args.study)
+    print(f"asked the command that drives {args.study} ({holder}) to pause: each running run checkpoints at its next "
+          f"episode end and stops (seconds to a minute); the command then ends with exit code {PAUSED_CODE} "
+          f"(sb3-cic status {args.study} shows the runs' checkpoints)")
+    return 0

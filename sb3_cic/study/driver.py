@@ -20,11 +20,20 @@ from pathlib import Path
 from typing import Any, Protocol, Sequence
 
 from sb3_cic import zoo
+from sb3_cic.common.resumable import RunPaused
 from sb3_cic.protocol import finetune, pretrain
 from sb3_cic.study.checkpoint import RunFolder
 from sb3_cic.study.graph import build_graph, check_study, record_runs, settings_use, skill_choice_of
 from sb3_cic.study.layout import task_env_id
-from sb3_cic.study.record import Pairing, StudyLock, check_resume_settings, check_run_settings, resolve_pairing
+from sb3_cic.study.record import (
+    Pairing,
+    StudyLock,
+    check_resume_settings,
+    check_run_settings,
+    clear_pause,
+    pause_requested,
+    resolve_pairing,
+)
 from sb3_cic.study.run import Run
 from sb3_cic.study.settings import Settings
 from sb3_cic.study.settings_record import check_study_settings, record_study_settings, run_record
@@ -73,9 +82,13 @@ class InProcess:
         return settings
 
     def run(self, plan: StudyPlan) -> list[dict[str, Any]]:
-        """Run every run of the plan (a finished one returns its result); return the fine-tunings' results."""
+        """Run every run of the plan (a finished one returns its result); return the fine-tunings' results. Asked to
+        pause (:func:`~sb3_cic.study.record.request_pause`), the running run checkpoints at its episode's end and
+        :class:`~sb3_cic.common.resumable.RunPaused` ends the command."""
         results = []
         for run in plan.runs:
+            if pause_requested(plan.study) is not None:
+                raise RunPaused()
             if run.task is None:
                 pretrain(plan.study, run, plan.settings, plan.config(run))
             else:
@@ -133,13 +146,19 @@ def plan_study(
 def drive(plan: StudyPlan, executor: Executor) -> list[dict[str, Any]]:
     """Record the plan's command in ``study.json`` (its settings, yaml, pairing and runs) under the study's lock
     (:class:`~sb3_cic.study.record.StudyLock`: one command drives a folder at a time), delete what a finished run
-    killed just after writing its ``result.json`` left, and run the plan with ``executor``; return what it returns."""
+    killed just after writing its ``result.json`` left, and run the plan with ``executor``; return what it returns.
+    A pause request (:func:`~sb3_cic.study.record.request_pause`) left from an earlier command is forgotten as the
+    command starts, this command's as it ends."""
     with StudyLock(plan.study):
-        record_study_settings(plan.study, plan.settings, plan.pairing, **settings_use(plan.runs, plan.conf_files))
-        record_runs(plan.study, plan.runs)
-        for run in plan.runs:
-            RunFolder(run.folder(plan.study)).clean()
-        return executor.run(plan)
+        clear_pause(plan.study)
+        try:
+            record_study_settings(plan.study, plan.settings, plan.pairing, **settings_use(plan.runs, plan.conf_files))
+            record_runs(plan.study, plan.runs)
+            for run in plan.runs:
+                RunFolder(run.folder(plan.study)).clean()
+            return executor.run(plan)
+        finally:
+            clear_pause(plan.study)
 
 
 def _record(run: Run, settings: Settings, pairing: Pairing, configs: dict[str, str | None]) -> dict[str, Any]:

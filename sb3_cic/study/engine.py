@@ -9,7 +9,9 @@ written) and returns a failed status: the other runs go on. No queue or retry lo
 
 One command drives a study folder at a time (:class:`~sb3_cic.study.record.StudyLock`). Interrupted (Ctrl-C,
 SIGTERM: :class:`KeyboardInterrupt`), the command stops its runs before it ends (:func:`stop_runs`): no process of
-it writes in the folder afterwards, and the same command resumes the study.
+it writes in the folder afterwards, and the same command resumes the study. Paused (``sb3-cic pause``,
+:func:`~sb3_cic.study.record.request_pause`), its running runs checkpoint at their episode's end and return a
+paused status, and the runs not started return one at once.
 """
 
 from __future__ import annotations
@@ -31,10 +33,12 @@ from tqdm.auto import tqdm
 
 from sb3_cic.command_line import Interrupted
 from sb3_cic.common.arguments import NON_NEGATIVE_INT, check_argument
+from sb3_cic.common.resumable import RunPaused
 from sb3_cic.protocol import finetune, pretrain
 from sb3_cic.study.checkpoint import RunFolder, process_start_time
 from sb3_cic.study.driver import StudyPlan, drive, plan_study
 from sb3_cic.study.graph import alive, recorded_pid
+from sb3_cic.study.record import pause_requested
 from sb3_cic.study.run import Run
 from sb3_cic.study.settings import Settings
 
@@ -49,12 +53,18 @@ def execute(
     :param settings: the study's settings
     :param dependency: the status its pre-training's task returned (a failed one fails this run too)
     :param config: the yaml of the run's method (None: the default)
-    :return: ``{"run": str(run), "state": "done" | "failed", "error": ...}``
+    :return: ``{"run": str(run), "state": "done" | "failed" | "paused", "error": ...}`` (paused: the command was
+        asked to pause, :func:`~sb3_cic.study.record.request_pause`; the run stopped at its checkpoint, or did not
+        start, as a fine-tuning of a paused pre-training)
     """
     try:
+        if pause_requested(study) is not None or (dependency is not None and dependency["state"] == "paused"):
+            raise RunPaused()
         if dependency is not None and dependency["state"] != "done":
             raise RuntimeError(f"its pre-training failed: {dependency['error']}")
         (pretrain if run.task is None else finetune)(study, run, settings, config)
+    except RunPaused as paused:
+        return {"run": str(run), "state": "paused", "error": None, "step": paused.step}
     except Exception as error:  # recorded; the study goes on
         return failed(study, run, f"{type(error).__name__}: {error}", traceback.format_exc())
     return {"run": str(run), "state": "done", "error": None}
@@ -113,9 +123,11 @@ def run_graph(plan: StudyPlan, executor: RayExecutor) -> list[dict[str, Any]]:
                         status = failed(study, run, f"{type(error).__name__}: {error}", f"Ray gave up on the run:\n{error}\n")
                     statuses.append(status)
                     bar.update(1)
-                    bar.set_postfix(failed=sum(s["state"] != "done" for s in statuses), refresh=False)
-                    if status["state"] != "done":
+                    bar.set_postfix(failed=sum(s["state"] == "failed" for s in statuses), refresh=False)
+                    if status["state"] == "failed":
                         bar.write(f"failed: {status['run']}: {status['error']}")
+                    elif status["state"] == "paused" and status["step"] is not None:
+                        bar.write(f"paused: {status['run']} at step {status['step']:,}")
     except KeyboardInterrupt:
         for ref in pending:
             ray.cancel(ref, force=True, recursive=True)

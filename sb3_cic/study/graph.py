@@ -16,7 +16,7 @@ from sb3_cic import zoo
 from sb3_cic.constants import EXPERT_SCORES
 from sb3_cic.study.run_result import read_run_result
 from sb3_cic.study.checkpoint import RunFolder, process_start_time, write_json
-from sb3_cic.study.record import Pairing, StudyLock, study_record
+from sb3_cic.study.record import Pairing, StudyLock, pause_requested, study_record
 from sb3_cic.study.run import Run
 from sb3_cic.study.layout import (
     check_snapshot,
@@ -242,8 +242,8 @@ def run_state(folder: RunFolder, kind: str = "finetune", check: Any = None) -> t
         :func:`~sb3_cic.study.run_result.read_run_result` alone)
 
     ``running``: its ``progress.json`` names a live process (on this host, the same process: its start time is the
-    one recorded, :func:`recorded_process_alive`) or another host; a run whose process is gone is ``pending`` (it resumes from its
-    checkpoint when started again).
+    one recorded, :func:`recorded_process_alive`) or a process of another host; a run whose process is gone, or
+    that names none (paused), is ``pending`` (it resumes from its checkpoint when started again).
     """
     if folder.done:
         try:
@@ -263,7 +263,7 @@ def run_state(folder: RunFolder, kind: str = "finetune", check: Any = None) -> t
     if folder.error.exists():
         lines = folder.error.read_text().strip().splitlines()
         return "failed", {**info, "error": lines[-1] if lines else "", "traceback": str(folder.error)}
-    if progress:
+    if progress and recorded_pid(progress) is not None:  # one that names no process (a paused run's): pending
         here = progress.get("host") == socket.gethostname()
         if not here or recorded_process_alive(progress):
             return "running", {**info, "host": progress.get("host"), "pid": progress.get("pid")}
@@ -347,8 +347,11 @@ def status_report(study: str | Path) -> tuple[str, bool]:
     counted = f"{len(runs)} run{'' if len(runs) == 1 else 's'}"
     lines = [f"{study}: {counted}, " + ", ".join(f"{total[s]} {s}" for s in STATES)]
     lines.append(f"pre-training: {pairing.describe() if pairing else 'none yet (runs from scratch only)'}")
-    holder = StudyLock.holder(study)
-    lines += [f"driven now by {holder}" if holder else "no command drives it now", ""]
+    holder, pause = StudyLock.holder(study), pause_requested(study)
+    lines.append(f"driven now by {holder}" if holder else "no command drives it now")
+    if holder and pause:
+        lines.append(f"asked to pause ({pause}; sb3-cic pause): its runs stop at their next episode end, checkpointed")
+    lines.append("")
     lines.append(f"| method | domain | {' | '.join(STATES)} |")
     lines.append("|---|---|" + "---:|" * len(STATES))
     for (method, domain), counter in sorted(counts.items()):

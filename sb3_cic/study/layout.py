@@ -4,6 +4,7 @@ One study lives in one folder::
 
     <study>/study.json                      the settings the study was made with, its pairing, and its runs
     <study>/study.lock                      held by the command that drives the study (one at a time)
+    <study>/pause.json                      while that command is asked to pause (``sb3-cic pause``)
     <study>/pretrain/<method>_<domain>/snapshot_<steps>.zip, result.json, settings.json
     <study>/pretrain/<method>_<domain>_seed<s>/...      (paired studies: the pre-training of seed s > 0)
     <study>/finetune/<label>/<task>/seed_<k>/eval.csv, result.json, settings.json
@@ -39,6 +40,11 @@ def study_file(study: str | Path) -> Path:
 def lock_file(study: str | Path) -> Path:
     """``<study>/study.lock``: locked by the command that drives the study."""
     return Path(study) / "study.lock"
+
+
+def pause_file(study: str | Path) -> Path:
+    """``<study>/pause.json``: the request that the command driving the study pause (``sb3-cic pause``)."""
+    return Path(study) / "pause.json"
 
 
 def task_name(domain: str, task: str) -> str:

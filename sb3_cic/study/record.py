@@ -9,7 +9,9 @@
   folder does not record its settings;
 * each run folder's ``settings.json`` (:func:`check_run_settings`): the settings the run was made with, checked
   against every command that meets the run;
-* the lock (:class:`StudyLock`): one command drives a study folder at a time.
+* the lock (:class:`StudyLock`): one command drives a study folder at a time;
+* a pause request (:func:`request_pause`): the command that drives the study stops its runs at their next episode
+  end, each checkpointed there.
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ from pathlib import Path
 from typing import IO, Any
 
 from sb3_cic.study.checkpoint import write_json
-from sb3_cic.study.layout import lock_file, run_folders, study_file
+from sb3_cic.study.layout import lock_file, pause_file, run_folders, study_file
 
 #: the pairings of a study: ``paired`` (URLB's) and ``shared`` (the CIC code's)
 PAIRINGS: tuple[str, ...] = ("paired", "shared")
@@ -367,3 +369,42 @@ class StudyLock:
         fcntl.flock(self._file, fcntl.LOCK_UN)
         self._file.close()
         self._file = None
+
+
+# the pause -----------------------------------------------------------------------------------------------
+def request_pause(study: str | Path) -> str:
+    """Ask the command that drives ``study`` to pause (``sb3-cic pause``): each of its running runs checkpoints at
+    its next episode end and stops, no other run starts, and the command ends (a run without checkpoints,
+    ``--checkpoint-every 0``, runs to its end). Returns who drives it; a ``ValueError`` when no command does.
+
+    :param study: study folder
+    """
+    holder = StudyLock.holder(study)
+    if holder is None:
+        raise ValueError(f"no command drives {study}: there is nothing to pause (sb3-cic status {study})")
+    write_json(pause_file(study), {"requested": time.strftime("%Y-%m-%d %H:%M:%S"), "by": f"pid {os.getpid()} on "
+                                   f"{socket.gethostname()}", "driver": holder})
+    return holder
+
+
+def pause_requested(study: str | Path) -> str | None:
+    """When the command driving ``study`` was asked to pause (None: it was not). Read by each run once an episode.
+
+    :param study: study folder
+    """
+    try:
+        request = json.loads(pause_file(study).read_text())
+    except FileNotFoundError:
+        return None
+    except (OSError, ValueError):  # being written, or damaged: a request all the same
+        return "at an unknown time"
+    return str(request.get("requested", "at an unknown time")) if isinstance(request, dict) else "at an unknown time"
+
+
+def clear_pause(study: str | Path) -> None:
+    """Forget a pause request: the command that drives ``study`` does when it starts (a request for an earlier
+    command is not for it) and when it ends.
+
+    :param study: study folder
+    """
+    pause_file(study).unlink(missing_ok=True)
