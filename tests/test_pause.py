@@ -103,7 +103,8 @@ def test_a_run_paused_before_its_first_step_keeps_nothing_and_starts_over(tmp_pa
     with pytest.raises(RunPaused) as paused:
         run_protocol(tmp_path, "ddpg", "walker", tasks=["stand"], seeds=[0], settings=SETTINGS)
     folder = RunFolder(tmp_path / "finetune" / "ddpg" / "walker_stand" / "seed_0")
-    assert paused.value.step == 0 and not folder.checkpoint.exists() and run_state(folder) == ("pending", {"checkpoint_step": 0})
+    assert paused.value.step == 0 and not folder.checkpoint.exists()
+    assert run_state(folder) == ("pending", {"checkpoint_step": 0})
 
 
 def test_pause_asks_the_driving_command_and_refuses_without_one(tmp_path: Path, capsys: pytest.CaptureFixture):
