@@ -5,6 +5,7 @@ there, and the same command resumes them as if nothing had happened (tiny scale:
 
 from __future__ import annotations
 
+import fcntl
 import json
 import socket
 from dataclasses import replace
@@ -120,6 +121,21 @@ def test_pause_asks_the_driving_command_and_refuses_without_one(tmp_path: Path, 
         out = capsys.readouterr().out
         assert f"asked the command that drives {study} (pid " in out and f"exit code {PAUSED_CODE}" in out
         assert pause_requested(study) == json.loads(pause_file(study).read_text())["requested"]
+
+
+def test_pause_refuses_a_driver_that_would_not_read_it(tmp_path: Path, capsys: pytest.CaptureFixture):
+    """A command of a version before ``sb3-cic pause`` holds the lock: a request would never be seen."""
+    study = tmp_path / "study"
+    study.mkdir()
+    with open(study / "study.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        lock.write("pid 12 on elsewhere, since 2026-01-01 00:00:00\n")  # what such a command writes
+        lock.flush()
+        with pytest.raises(SystemExit) as exit_info:
+            main(["pause", str(study)])
+    assert exit_info.value.code == 2 and not pause_file(study).exists()
+    assert "(pid 12 on elsewhere, since 2026-01-01 00:00:00) is of a version that does not read pause requests: stop it " \
+        "with Ctrl-C or SIGTERM" in capsys.readouterr().err
 
 
 def test_a_command_forgets_a_pause_of_an_earlier_command_and_its_own(tmp_path: Path):

@@ -296,6 +296,10 @@ def study_record(study: str | Path) -> dict[str, Any] | None:
 
 
 # the lock ------------------------------------------------------------------------------------------------
+#: what the lock of a command that reads pause requests says of it (a command of an older version does not)
+PAUSABLE = "pausable: sb3-cic pause"
+
+
 def _holder_said(file: IO[str]) -> str:
     """Who holds the lock, as its open lock ``file`` says (written by :class:`StudyLock`)."""
     file.seek(0)
@@ -306,8 +310,9 @@ class StudyLock:
     """One driver per study folder: an exclusive ``flock`` on ``<study>/study.lock``, held while the command runs.
 
     The kernel releases the lock when its process ends, however it ends (a killed driver leaves no stuck lock).
-    The file says who holds it (host, pid, start), for the message of the command it refuses. A folder the lock
-    made and in which nothing else was written (the command was stopped at once) is removed when it is released.
+    The file says who holds it (host, pid, start, and that it reads pause requests: :data:`PAUSABLE`), for the message
+    of the command it refuses and for ``sb3-cic pause``. A folder the lock made and in which nothing else was
+    written (the command was stopped at once) is removed when it is released.
 
     :param study: study folder
     """
@@ -353,7 +358,8 @@ class StudyLock:
                              "(a stopped command leaves no lock behind), then run this one again") from None
         file.seek(0)
         file.truncate()
-        file.write(f"pid {os.getpid()} on {socket.gethostname()}, since {time.strftime('%Y-%m-%d %H:%M:%S')}\n")
+        file.write(f"pid {os.getpid()} on {socket.gethostname()}, since {time.strftime('%Y-%m-%d %H:%M:%S')} "
+                   f"({PAUSABLE})\n")
         file.flush()
         self._file = file
         return self
@@ -382,6 +388,9 @@ def request_pause(study: str | Path) -> str:
     holder = StudyLock.holder(study)
     if holder is None:
         raise ValueError(f"no command drives {study}: there is nothing to pause (sb3-cic status {study})")
+    if PAUSABLE not in holder:
+        raise ValueError(f"the command that drives {study} ({holder}) is of a version that does not read pause "
+                         "requests: stop it with Ctrl-C or SIGTERM instead (each run keeps its last checkpoint)")
     write_json(pause_file(study), {"requested": time.strftime("%Y-%m-%d %H:%M:%S"), "by": f"pid {os.getpid()} on "
                                    f"{socket.gethostname()}", "driver": holder})
     return holder
