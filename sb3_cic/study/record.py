@@ -405,7 +405,7 @@ def pause_requested(study: str | Path) -> str | None:
         request = json.loads(pause_file(study).read_text())
     except FileNotFoundError:
         return None
-    except (OSError, ValueError):  # being written, or damaged: a request all the same
+    except (OSError, ValueError):  # unreadable or damaged: a request all the same
         return "at an unknown time"
     return str(request.get("requested", "at an unknown time")) if isinstance(request, dict) else "at an unknown time"
 
