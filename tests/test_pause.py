@@ -98,14 +98,23 @@ def test_a_run_without_checkpoints_ignores_the_pause(tmp_path: Path, monkeypatch
     assert result["finetune_steps"] == 1000 and result["resumed_from_step"] == 0
 
 
-def test_a_run_paused_before_its_first_step_keeps_nothing_and_starts_over(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
-    """Asked at step 0, the run writes no checkpoint (nothing to keep) and is pending at step 0."""
+def test_a_run_paused_before_its_first_step_keeps_nothing_and_starts_over(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture
+):
+    """Asked at step 0, the run writes no checkpoint (nothing to keep) and is pending at step 0; ``sb3-cic protocol``
+    ends with exit code 75 and one line that says how to resume."""
     monkeypatch.setattr("sb3_cic.protocol.pause_check", lambda study: lambda: True)
-    with pytest.raises(RunPaused) as paused:
-        run_protocol(tmp_path, "ddpg", "walker", tasks=["stand"], seeds=[0], settings=SETTINGS)
+    with pytest.raises(SystemExit) as exit_info:
+        main(["protocol", "--method", "ddpg", "--domain", "walker", "--tasks", "stand", "--seeds", "0", "--study",
+              str(tmp_path), "--hidden-dim", "32", "--batch-size", "32", "--learning-starts", "500", "--buffer-size", "10000",
+              "--no-progress"])
     folder = RunFolder(tmp_path / "finetune" / "ddpg" / "walker_stand" / "seed_0")
-    assert paused.value.step == 0 and not folder.checkpoint.exists()
+    assert exit_info.value.code == PAUSED_CODE and not folder.checkpoint.exists()
     assert run_state(folder) == ("pending", {"checkpoint_step": 0})
+    out, err = capsys.readouterr()
+    assert "ddpg walker_stand seed 0: paused at step 0 of 100,000 (nothing done to keep)" in out
+    assert err == ("sb3-cic protocol: paused (sb3-cic pause): its runs stopped at their checkpoints; run the same "
+                   "command to resume\n")
 
 
 def test_pause_asks_the_driving_command_and_refuses_without_one(tmp_path: Path, capsys: pytest.CaptureFixture):
