@@ -195,7 +195,7 @@ def train(
             reset_num_timesteps=not checkpoint,
         )
     except RunPaused as paused:
-        folder.pause()
+        folder.pause(paused.step)
         model.logger.close()  # its TensorBoard events written out: the process may live on (a Ray worker)
         kept = "its checkpoint" if paused.step else "nothing done to keep"
         print(f"{label}: paused at step {paused.step:,} of {steps:,} ({kept})", flush=True)

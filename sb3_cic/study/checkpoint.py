@@ -154,13 +154,15 @@ class RunFolder:
              "checkpoint_step": checkpoint_step, "updated": time.time()},
         )
 
-    def pause(self) -> None:
+    def pause(self, checkpoint_step: int) -> None:
         """Record that the run stopped on a pause (:class:`~sb3_cic.common.resumable.RunPaused`): ``progress.json``
         keeps its last checkpoint's step and names no process (the process, a Ray worker, may live on), so the run
-        is pending."""
-        progress = self.read_progress() or {}
-        write_json(self.progress, {"host": socket.gethostname(), "pid": None, "checkpoint_step":
-                                   progress.get("checkpoint_step", 0), "paused": time.time()})
+        is pending.
+
+        :param checkpoint_step: the step of its last checkpoint (0: none)
+        """
+        write_json(self.progress, {"host": socket.gethostname(), "pid": None, "checkpoint_step": checkpoint_step,
+                                   "paused": time.time()})
 
     def finish(self, result: dict[str, Any]) -> None:
         """Write ``result.json``, then delete the checkpoint and ``progress.json`` (:meth:`clean`).
