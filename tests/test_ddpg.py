@@ -17,6 +17,8 @@ from sb3_cic import CIC, URLBDDPG
 from sb3_cic.buffers import URLBReplayBuffer
 from sb3_cic.common.save_util import NETWORKS_ONLY_ENTRY, is_networks_only, networks_only
 
+from method_classes import METHODS
+
 
 def test_policy_layers_match_spec():
     model = URLBDDPG("MlpPolicy", "URLB/walker-walk-v0", buffer_size=1024)
@@ -255,3 +257,31 @@ def test_networks_only_snapshot_loads_with_fresh_optimisers(tmp_path, tiny):
     assert is_networks_only(tmp_path / "older.zip")
     older = CIC.load(tmp_path / "older.zip", env="URLB/walker-v0")
     assert all(th.equal(a, b) for a, b in zip(older.actor.parameters(), model.actor.parameters()))
+
+
+@pytest.mark.parametrize("cls", METHODS, ids=lambda cls: cls.__name__)
+def test_a_finetuning_from_the_networks_only_snapshot_is_the_one_from_the_full_save(cls, tmp_path, tiny):
+    # a study commits its pre-trainings' networks-only snapshots: a fine-tuning that starts from one elsewhere must
+    # be the fine-tuning that the full save gives (fine-tuning starts fresh optimisers either way)
+    model = cls("MlpPolicy", "URLB/point_mass-v0", seed=0, tensorboard_log=str(tmp_path / "tb"), **tiny)
+    model.learn(400)
+    model.save(tmp_path / "full.zip")
+    networks_only(tmp_path / "full.zip", tmp_path / "networks.zip")
+    tuned = []
+    for name in ("full.zip", "networks.zip"):
+        task = cls.load_pretrained(tmp_path / name, env="URLB/point_mass-reach-v0", seed=1, learning_starts=100,
+                                   tensorboard_log=None)
+        task.learn(300)
+        tuned.append(task)
+    full, small = tuned
+    assert full._n_updates == small._n_updates > 0
+    for part in ("policy", "reward_module"):
+        a, b = getattr(full, part).state_dict(), getattr(small, part).state_dict()
+        assert a.keys() == b.keys() and all(th.equal(a[k], b[k]) for k in a), part
+    for part in ("actor", "critic"):
+        a, b = getattr(full, part).optimizer.state_dict(), getattr(small, part).optimizer.state_dict()
+        assert a["state"].keys() == b["state"].keys() and a["state"]
+        assert all(th.equal(a["state"][i]["exp_avg"], b["state"][i]["exp_avg"]) for i in a["state"])
+    assert (full.finetune_skill is None) == (small.finetune_skill is None)
+    if full.finetune_skill is not None:
+        np.testing.assert_array_equal(full.finetune_skill, small.finetune_skill)

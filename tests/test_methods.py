@@ -20,10 +20,10 @@ from sb3_cic import CIC, URLBDDPG, URLBEvalCallback, zoo
 from sb3_cic.common.arguments import parameter_default, parameters_of
 from sb3_cic.common.method import MethodMixin
 
+from method_classes import METHODS
+
 #: the four parts a method declares (:class:`~sb3_cic.common.method.MethodMixin`)
 PARTS = ("skill_prior_class", "reward_module_class", "reward_module_args", "finetune_skill_choices", "finetune_critic")
-METHODS = [getattr(methods, name) for name in methods.__all__ if isinstance(getattr(methods, name), type)
-           and issubclass(getattr(methods, name), URLBDDPG)]
 #: yaml values that differ from the code's default on purpose, ``{(yaml file, key): reason}``: a variant's yaml
 OVERRIDES: dict[tuple[str, str], str] = {
     ("cic_code.yml", "cic_variant"): "CIC as the reference code runs it: its loss, reward normalisation and k",

@@ -15,15 +15,15 @@ from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.vec_env import VecNormalize
 
-import sb3_cic.methods as methods
 import shimmy  # noqa: F401  (registers the dm_control/... ids with gymnasium)
 from sb3_cic.envs import FlatStateDict
 from sb3_cic.envs.dict_obs import state_dict_keys
 from sb3_cic import CIC, URLBDDPG, URLBEvalCallback
 from sb3_cic.common.env_util import make_env
 
-METHODS = [URLBDDPG] + [getattr(methods, name) for name in methods.__all__ if isinstance(getattr(methods, name), type)
-                        and issubclass(getattr(methods, name), URLBDDPG)]
+import method_classes
+
+METHODS = [URLBDDPG, *method_classes.METHODS]
 
 
 class DictStates(gym.Env):
