@@ -233,6 +233,8 @@ def test_networks_only_snapshot_loads_with_fresh_optimisers(tmp_path, tiny):
     assert "policy.pth" in names and "reward_module.pth" in names and not any("optimizer" in n for n in names)
     assert NETWORKS_ONLY_ENTRY in names and is_networks_only(small) and not is_networks_only(tmp_path / "full.zip")
     assert small.stat().st_size < (tmp_path / "full.zip").stat().st_size
+    written = small.read_bytes()
+    assert networks_only(small) == small and small.read_bytes() == written  # done once: left as it is
     with pytest.raises(ValueError):  # set_parameters is SB3's: the optimisers' states are missing objects
         model.set_parameters(small, exact_match=True)
     loaded = CIC.load(small, env="URLB/walker-v0")

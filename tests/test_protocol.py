@@ -10,6 +10,7 @@ from __future__ import annotations
 import hashlib
 import json
 import shutil
+import zipfile
 from dataclasses import replace
 from pathlib import Path
 
@@ -19,6 +20,7 @@ import torch as th
 import yaml
 
 from sb3_cic.cli import main
+from sb3_cic.common.save_util import is_networks_only
 from sb3_cic.constants import EXPERT_SCORES
 from sb3_cic.report import figures, scores
 from sb3_cic.skills import UniformSkillPrior
@@ -27,6 +29,7 @@ from sb3_cic.study.driver import run_protocol
 from sb3_cic.study.settings import Settings
 from sb3_cic.study.settings_record import check_study_settings, conf_file_record, record_study_settings
 from sb3_cic.study.checkpoint import RunFolder
+from sb3_cic.study.snapshots import file_sha256
 
 SETTINGS = Settings(
     hidden_dim=32,
@@ -64,7 +67,12 @@ def _results(study: Path) -> list[dict]:
 
 def test_study_layout(study: Path):
     pre = json.loads((study / "pretrain" / "cic_walker" / "result.json").read_text())
-    assert pre["steps"] == 1500 and (study / "pretrain" / "cic_walker" / "snapshot_1500.zip").stat().st_size > 0
+    snapshot = study / "pretrain" / "cic_walker" / "snapshot_1500.zip"
+    assert pre["steps"] == 1500 and snapshot.stat().st_size > 0
+    # networks only, naming no local path: a study's snapshots are shared as they are, and the recorded hash is theirs
+    with zipfile.ZipFile(snapshot) as archive:
+        assert is_networks_only(snapshot) and str(study).encode() not in archive.read("data")
+    assert pre["snapshot_sha256"] == {"1500": file_sha256(snapshot)}
     assert pre["wall_time_s"]["pretrain"] > 0
     assert not (study / "pretrain" / "ddpg_walker").exists()  # DDPG runs from scratch
     results = _results(study)

@@ -138,7 +138,8 @@ def networks_only(path: str | Path, out: str | Path | None = None) -> Path:
     reward module and the attributes, about half the size, that :meth:`SaveLoadMixin.load` and
     ``load_pretrained`` read with fresh optimisers (fine-tuning starts with fresh ones anyway). The copy says what
     it is (a :data:`NETWORKS_ONLY_ENTRY`) and forgets the tensorboard folder of the machine it was trained on
-    (``tensorboard_log``: None), so that a snapshot to share names no local path.
+    (``tensorboard_log``: None), so that a snapshot to share names no local path. A file that this function wrote
+    is left as it is when ``out`` is the file itself (its bytes, and so the sha256 a study recorded of it, kept).
 
     :param path: the saved model (``.zip``)
     :param out: where to write the copy (default: over ``path``)
@@ -147,6 +148,8 @@ def networks_only(path: str | Path, out: str | Path | None = None) -> Path:
     path = Path(path)
     out = path if out is None else Path(out)
     with zipfile.ZipFile(path) as archive:
+        if out.resolve() == path.resolve() and NETWORKS_ONLY_ENTRY in archive.namelist():
+            return out
         entries = [(info, archive.read(info)) for info in archive.infolist() if not is_optimizer_state(info.filename)]
     with tempfile.NamedTemporaryFile(dir=out.parent, suffix=".zip", delete=False) as file:
         with zipfile.ZipFile(file, "w", zipfile.ZIP_DEFLATED) as archive:

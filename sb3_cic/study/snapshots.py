@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from sb3_cic.common.resumable import ResumableCallback
+from sb3_cic.common.save_util import networks_only
 from sb3_cic.study.layout import check_snapshot, snapshot_file
 from sb3_cic.study.settings import Settings
 
@@ -33,7 +34,10 @@ def snapshot_steps(settings: Settings, steps: int) -> list[int]:
 
 
 class SnapshotCallback(ResumableCallback):
-    """Save the model as ``snapshot_<steps>.zip`` when training reaches each of ``steps``.
+    """Save the model as ``snapshot_<steps>.zip`` when training reaches each of ``steps``, networks only
+    (:func:`~sb3_cic.common.save_util.networks_only`: no optimiser states, replay buffer or local TensorBoard path),
+    the file a study can share as it is: a fine-tuning starts with fresh optimisers (the run resumes from its
+    checkpoint, not from a snapshot).
 
     :param save_path: folder of the snapshots
     :param steps: the steps to save at
@@ -51,6 +55,7 @@ class SnapshotCallback(ResumableCallback):
             step = self.pending.pop(0)
             path = snapshot_file(self.save_path, step)
             self.model.save(path)
+            networks_only(path)
             self.saved[step] = path.name
             if self.verbose:
                 print(f"Saved snapshot {path}")
