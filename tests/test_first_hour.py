@@ -26,6 +26,7 @@ import torch as th
 from sb3_cic import cli
 from sb3_cic.cli import main
 from sb3_cic.common import progress
+from sb3_cic.study.checkpoint import RunFolder
 from sb3_cic.study.engine import announce_resumed
 from sb3_cic.study.graph import Run
 from waiting import wait_for
@@ -205,8 +206,10 @@ def test_ctrl_c_in_protocol_is_one_line_and_the_run_resumes(workdir: Path, capsy
                               stderr=subprocess.PIPE, text=True)
     os.close(terminal)
     try:
-        wait_for(lambda: (folder / "checkpoint.zip").exists(), "the run's first checkpoint", driver,
-                 lambda: driver.stderr.read() if driver.poll() is not None else "")
+        # the checkpoint is renamed into place before progress.json records its step: wait for the record, or a
+        # SIGINT between the two finds progress.json still at step 0
+        wait_for(lambda: (RunFolder(folder).read_progress() or {}).get("checkpoint_step", 0) >= 1000,
+                 "the run's first checkpoint", driver, lambda: driver.stderr.read() if driver.poll() is not None else "")
         driver.send_signal(signal.SIGINT)
         _, err = driver.communicate()
     finally:
@@ -219,7 +222,7 @@ def test_ctrl_c_in_protocol_is_one_line_and_the_run_resumes(workdir: Path, capsy
     assert err.strip().splitlines() == [
         "sb3-cic protocol: interrupted (SIGINT); each run keeps its last checkpoint: run the same command to resume"
     ]
-    step = json.loads((folder / "progress.json").read_text())["checkpoint_step"]
+    step = RunFolder(folder).read_meta()["step"]  # what resumes: the checkpoint itself (a later one may have come)
     assert step >= 1000 and not (folder / "result.json").exists()
 
     capsys.readouterr()
